@@ -1,0 +1,21 @@
+"""On-demand benchmarks: `python -m dynplan.bench NAME [--json]`.
+
+Each benchmark is a function returning `{case: {figure: value}}`; speeds are medians over repeats and, where a
+baseline exists, reported as a ratio against it measured in the same process. Targets live here, never in
+timed unit tests.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from dynplan.bench.world import bench_world
+
+Results = dict[str, dict[str, float]]
+
+#: name → benchmark; later issues register theirs here.
+BENCHMARKS: dict[str, Callable[..., Results]] = {
+    "world": bench_world,
+}
+
+__all__ = ["BENCHMARKS", "Results"]
