@@ -1,5 +1,7 @@
 """The road world's dynamics: invariants over seeds, levels and grid sizes, and golden statistics (SPEC §1)."""
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import given
@@ -24,9 +26,10 @@ def obstacle_mask(frames: np.ndarray) -> np.ndarray:
 
 
 @given(configs, seeds)
-def test_same_seed_same_world_and_prefix_independent_of_length(cfg, seed):
+def test_length_formula_determinism_and_prefix_independent_of_length(cfg, seed):
     a = generate_world(cfg, seed)
     b = generate_world(cfg, seed)
+    assert a.frames.shape == (int(3 * math.sqrt(cfg.height**2 + cfg.width**2) / cfg.agent_speed), cfg.height, cfg.width)
     np.testing.assert_array_equal(a.frames, b.frames)
     np.testing.assert_array_equal(a.agent_start, b.agent_start)
     longer = generate_world(cfg, seed, n_frames=2 * cfg.max_steps + 1)
