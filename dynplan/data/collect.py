@@ -1,0 +1,69 @@
+"""Record episodes as MCAP logs, one file per seed, resumably.
+
+`record_episode` is idempotent: a complete log of the same world is left alone, a damaged one is rewritten,
+and a complete log of a *different* world (another level or grid) is an error rather than silently replaced.
+Writes are atomic, so an interrupted run leaves no partial log under its final name.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from dynplan.env.config import RoadConfig
+from dynplan.env.road import generate_world
+from dynplan.logs.reader import LogError, read_episode_log
+from dynplan.logs.writer import write_episode_log
+
+#: Defaults of a recording: the paper's level and the longest episode (the 1× agent's 407 frames), so that one
+#: log serves both agent speeds.
+DEFAULT_RECORDING = RoadConfig(level=6, agent_speed=0.5)
+
+
+@dataclass(frozen=True)
+class RecordResult:
+    """One episode's fate in a collection run: status is "written", "rewritten" or "skipped"."""
+
+    seed: int
+    path: str
+    status: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def log_path(out_dir: str | os.PathLike, seed: int) -> Path:
+    """Where the log of `seed` lives in a collection folder."""
+    return Path(out_dir) / f"episode_{seed:010d}.mcap"
+
+
+def record_episode(out_dir: str | os.PathLike, seed: int, config: RoadConfig | dict = DEFAULT_RECORDING,
+                   n_frames: int | None = None) -> RecordResult:  # fmt: skip
+    """Make sure `out_dir` holds a complete log of the episode `seed` under `config` (`n_frames` frames)."""
+    config = config if isinstance(config, RoadConfig) else RoadConfig.from_dict(config)
+    n_frames = config.max_steps if n_frames is None else n_frames
+    path = log_path(out_dir, seed)
+    status = "written"
+    if path.exists():
+        try:
+            log = read_episode_log(path)
+        except LogError:
+            status = "rewritten"
+        else:
+            recorded = json.loads(log.metadata["config"])
+            if recorded != config.model_dump() or log.n_frames != n_frames:
+                raise LogError(
+                    path,
+                    f"already holds seed {seed} recorded with {recorded} over {log.n_frames} frames; "
+                    f"this run asks for {config.model_dump()} over {n_frames} — use another output folder",
+                )
+            return RecordResult(seed, str(path), "skipped")
+    write_episode_log(path, generate_world(config, seed, n_frames), n_frames=n_frames)
+    return RecordResult(seed, str(path), status)
+
+
+def stale_temporaries(out_dir: str | os.PathLike) -> list[Path]:
+    """Temporary files an interrupted writer left behind in `out_dir` (safe to delete)."""
+    return sorted(Path(out_dir).glob(".episode_*.mcap.*.tmp"))

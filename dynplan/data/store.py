@@ -1,0 +1,222 @@
+"""The frames store: recorded episodes as a chunked Zarr v3 group, built from logs with dask.
+
+Layout (readable with `zarr`, `dask.array.from_zarr` or `xarray.open_zarr`, no dynplan needed):
+
+| array      | shape                        | dtype   | chunks         | dimension_names              |
+| ---------- | ---------------------------- | ------- | -------------- | ---------------------------- |
+| frames     | (episode, time, y, x)        | uint8   | one episode    | episode, time, y, x          |
+| goal       | (episode, time, 2)           | float64 | 64 episodes    | episode, time, yx            |
+| seed       | (episode,)                   | int64   | 1024           | episode                      |
+| log_name   | (episode,)                   | string  | 1024           | episode                      |
+| log_sha256 | (episode,)                   | string  | 1024           | episode                      |
+
+Group attributes hold the format, the world config, n_frames, height, width and the pixel-value legend.
+Row 0 of `y` is the bottom of the world.
+
+Appending is incremental: logs whose SHA-256 is already in `log_sha256` are skipped, new ones are appended in
+(seed, name) order. `log_sha256` is written last for each batch and is the store's commit record, so an
+interrupted append is rolled back (other arrays truncated to its length) by the next build.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import dask
+import dask.array as da
+import numpy as np
+import zarr
+
+from dynplan.env.config import GOAL_VALUE
+from dynplan.logs.reader import LogError, read_episode_log
+
+STORE_FORMAT = "dynplan.frames"
+STORE_VERSION = "1"
+#: Episodes appended per dask computation (bounds memory: 64 × 407 × 48 × 48 B ≈ 60 MB).
+BATCH_EPISODES = 64
+
+INDEX_ARRAYS = ("seed", "log_name", "log_sha256")
+
+
+@dataclass(frozen=True)
+class LogInfo:
+    """What the store needs to know about one log, found without keeping its frames (error set if unusable)."""
+
+    path: str
+    sha256: str
+    seed: int = -1
+    n_frames: int = 0
+    height: int = 0
+    width: int = 0
+    config: dict = field(default_factory=dict)
+    goal: np.ndarray | None = None
+    error: str | None = None
+
+    @property
+    def name(self) -> str:
+        return Path(self.path).name
+
+
+@dataclass
+class BuildReport:
+    """Outcome of a build: logs appended, skipped (already in the store) and failed (path → reason)."""
+
+    store: str
+    episodes: int
+    added: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"store": self.store, "episodes": self.episodes, "added": self.added, "skipped": self.skipped,
+                "failed": self.failed}  # fmt: skip
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def inspect_for_store(path: str | os.PathLike) -> LogInfo:
+    """Validate one log and collect its checksum, seed, shape, config and goal track."""
+    path = str(path)
+    try:
+        sha = sha256_file(path)
+    except OSError as error:
+        return LogInfo(path, "", error=f"{path}: cannot read: {error}")
+    try:
+        log = read_episode_log(path)
+    except LogError as error:
+        return LogInfo(path, sha, error=str(error))
+    H, W = log.frames.shape[1:]
+    return LogInfo(path, sha, log.seed, log.n_frames, H, W, json.loads(log.metadata["config"]), log.goal)
+
+
+def load_frames(path: str) -> np.ndarray:
+    """(T, H, W) uint8 frames of a log (already validated by `inspect_for_store`)."""
+    return read_episode_log(path).frames
+
+
+def list_logs(log_dir: str | os.PathLike) -> list[Path]:
+    """The episode logs in a folder, sorted by name; a missing folder is an error that names it."""
+    log_dir = Path(log_dir)
+    if not log_dir.is_dir():
+        raise FileNotFoundError(f"{log_dir}: no such folder of episode logs")
+    return sorted(p for p in log_dir.glob("*.mcap") if p.is_file())
+
+
+def _geometry(info: LogInfo) -> dict:
+    return {"config": info.config, "n_frames": info.n_frames, "height": info.height, "width": info.width}
+
+
+def _create(group: zarr.Group, first: LogInfo) -> None:
+    T, H, W = first.n_frames, first.height, first.width
+    from dynplan import __version__
+
+    group.attrs.update(
+        format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **_geometry(first),
+        pixel_values={"free": 0, "goal": GOAL_VALUE, "obstacles": "45 truck, 85 wagon, 100 tesla, 130 sport, 144 sedan"},
+        y_axis="row 0 is the bottom of the world",
+    )  # fmt: skip
+    group.create_array("frames", shape=(0, T, H, W), chunks=(1, T, H, W), dtype="uint8",
+                       dimension_names=("episode", "time", "y", "x"))  # fmt: skip
+    group.create_array("goal", shape=(0, T, 2), chunks=(BATCH_EPISODES, T, 2), dtype="float64",
+                       dimension_names=("episode", "time", "yx"))  # fmt: skip
+    group.create_array("seed", shape=(0,), chunks=(1024,), dtype="int64", dimension_names=("episode",))
+    group.create_array("log_name", shape=(0,), chunks=(1024,), dtype=str, dimension_names=("episode",))
+    group.create_array("log_sha256", shape=(0,), chunks=(1024,), dtype=str, dimension_names=("episode",))
+
+
+def _resize_episodes(array: zarr.Array, n: int) -> None:
+    if array.shape[0] != n:
+        array.resize((n, *array.shape[1:]))
+
+
+def committed_checksums(store: str | os.PathLike) -> list[str]:
+    """SHA-256 of every log committed to `store` (empty if there is no store yet)."""
+    if not Path(store).exists():
+        return []
+    group = zarr.open_group(store, mode="r", use_consolidated=False)
+    return list(group["log_sha256"][:]) if "log_sha256" in group else []
+
+
+def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> BuildReport:
+    """Append the logs described by `infos` (from `inspect_for_store`) to the Zarr group at `store`.
+
+    Frames are copied with dask, one task per episode chunk, on whatever dask scheduler is active (a
+    `distributed.Client` if one is, threads otherwise). Writes nothing at all when every log is already in.
+    """
+    store = str(store)
+    report = BuildReport(store, episodes=0)
+    known = set(committed_checksums(store))
+    report.episodes = len(known)
+    new: dict[str, LogInfo] = {}
+    for info in infos:
+        if info.error:
+            report.failed[info.path] = info.error
+        elif info.sha256 in known or info.sha256 in new:
+            report.skipped.append(info.path)
+        else:
+            new[info.sha256] = info
+    if not new:
+        return report
+
+    # Consolidated metadata may be stale after an interrupted append: write against the arrays' own metadata.
+    group = zarr.open_group(store, mode="a", zarr_format=3, use_consolidated=False)
+    pending = sorted(new.values(), key=lambda i: (i.seed, i.name))
+    if "log_sha256" not in group:
+        _create(group, pending[0])
+    expected = {k: group.attrs[k] for k in ("config", "n_frames", "height", "width")}
+    accepted = []
+    for info in pending:
+        if _geometry(info) != expected:
+            report.failed[info.path] = (
+                f"{info.path}: recorded as {_geometry(info)}, but the store holds {expected}; use another store"
+            )
+        else:
+            accepted.append(info)
+
+    n = group["log_sha256"].shape[0]
+    for name in ("frames", "goal", "seed", "log_name"):  # roll back an interrupted append
+        _resize_episodes(group[name], n)
+    T, H, W = expected["n_frames"], expected["height"], expected["width"]
+    for start in range(0, len(accepted), BATCH_EPISODES):
+        batch = accepted[start : start + BATCH_EPISODES]
+        k = len(batch)
+        for name in ("frames", "goal", "seed", "log_name"):
+            _resize_episodes(group[name], n + k)
+        frames = da.stack([da.from_delayed(dask.delayed(load_frames)(i.path), (T, H, W), np.uint8) for i in batch])
+        da.store(frames, group["frames"], regions=(slice(n, n + k),), lock=False)
+        group["goal"][n : n + k] = np.stack([i.goal for i in batch])
+        group["seed"][n : n + k] = np.array([i.seed for i in batch], dtype=np.int64)
+        group["log_name"][n : n + k] = np.array([i.name for i in batch])
+        _resize_episodes(group["log_sha256"], n + k)
+        group["log_sha256"][n : n + k] = np.array([i.sha256 for i in batch])  # commit
+        n += k
+        report.added.extend(i.path for i in batch)
+    group.attrs["episodes"] = n
+    report.episodes = n
+    _consolidate(store)
+    return report
+
+
+def _consolidate(store: str) -> None:
+    """Consolidate metadata so that xarray opens the store in one read (zarr-python supports it for v3)."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
+        zarr.consolidate_metadata(store)
+
+
+def build_frame_store_from_logs(store: str | os.PathLike, logs: Sequence[str | os.PathLike]) -> BuildReport:
+    """Inspect `logs` in parallel with dask, then append the new ones to `store`."""
+    infos = dask.compute(*[dask.delayed(inspect_for_store)(str(p)) for p in logs])
+    return build_frame_store(store, infos)

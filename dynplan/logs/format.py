@@ -1,0 +1,86 @@
+"""The episode log format: one MCAP file per episode, Foxglove protobuf schemas, dynplan metadata.
+
+Topics (log time = EPOCH + t · FRAME_PERIOD; each message's own timestamp is equal to it):
+
+| topic          | schema              | one per | content                                                   |
+| -------------- | ------------------- | ------- | --------------------------------------------------------- |
+| /world/frame   | foxglove.RawImage   | frame   | mono8 world frame, image row 0 = world row H−1 (top)       |
+| /world/goal    | foxglove.PoseInFrame| frame   | goal block's lower-left corner: position.x = col, .y = row |
+| /agent/pose    | foxglove.PoseInFrame| step    | (optional) agent position, same axes                       |
+| /agent/step    | JSON (jsonschema)   | step    | (optional) {t, action, reward, outcome}                    |
+
+The metadata record `dynplan` holds the format and version, the world config (JSON), seed, height, width,
+n_frames, agent_start (JSON) and the dynplan version. Log times start at a fixed epoch rather than the wall
+clock, so the same seed always gives the same bytes and a log's checksum identifies its episode.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+FORMAT = "dynplan.episode"
+FORMAT_VERSION = "1"
+METADATA_NAME = "dynplan"
+
+TOPIC_FRAME = "/world/frame"
+TOPIC_GOAL = "/world/goal"
+TOPIC_AGENT_POSE = "/agent/pose"
+TOPIC_AGENT_STEP = "/agent/step"
+
+SCHEMA_FRAME = "foxglove.RawImage"
+SCHEMA_POSE = "foxglove.PoseInFrame"
+FRAME_ID = "world"
+
+#: 2018-07-10T00:00:00Z, the first day of ICML 2018: a fixed start so that logs are byte-reproducible.
+EPOCH_NS = 1_531_180_800 * 10**9
+#: 10 frames per second of log time.
+FRAME_PERIOD_NS = 100_000_000
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+STEP_JSON_SCHEMA = {
+    "title": "dynplan.AgentStep",
+    "type": "object",
+    "properties": {
+        "t": {"type": "integer", "description": "frame index the agent arrived on"},
+        "action": {"type": "integer", "description": "action index 0-7 (heading -180 + 45*i degrees)"},
+        "reward": {"type": "number"},
+        "outcome": {"type": "string", "enum": ["running", "goal", "death", "timeout"]},
+    },
+    "required": ["t", "action", "reward", "outcome"],
+}
+
+
+def log_time(t: int) -> int:
+    """Log time in nanoseconds of frame index `t`."""
+    return EPOCH_NS + int(t) * FRAME_PERIOD_NS
+
+
+@dataclass(frozen=True)
+class AgentTrack:
+    """An agent acting in an episode: its pose at each frame it occupied, and each step it took.
+
+    t:        (N,) frame indices, the first being the start frame (no action led there)
+    position: (N, 2) float64 continuous (y, x)
+    action:   (N−1,) action taken to reach t[1:]
+    reward:   (N−1,) reward of each step
+    outcome:  (N−1,) "running", "goal", "death" or "timeout" after each step
+    """
+
+    t: np.ndarray
+    position: np.ndarray
+    action: np.ndarray
+    reward: np.ndarray
+    outcome: tuple[str, ...]
+
+    def __post_init__(self) -> None:
+        n = len(self.t)
+        if self.position.shape != (n, 2) or len(self.action) != n - 1 or len(self.reward) != n - 1:
+            raise ValueError(
+                f"AgentTrack: {n} poses need positions (N, 2) and N−1 actions/rewards/outcomes; got "
+                f"{self.position.shape}, {len(self.action)}, {len(self.reward)}, {len(self.outcome)}"
+            )
+        if len(self.outcome) != n - 1:
+            raise ValueError(f"AgentTrack: {n} poses need {n - 1} outcomes, got {len(self.outcome)}")

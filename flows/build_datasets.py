@@ -1,0 +1,63 @@
+"""`python -m flows.build_datasets LOG_DIR --out STORE.zarr`: turn episode logs into the Zarr frames store.
+
+Logs are inspected one Prefect task each and copied with dask; logs already in the store (by SHA-256) are
+skipped, so rerunning after new logs arrive appends only those. Damaged logs are reported and skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
+from prefect.futures import as_completed
+
+from dynplan.data.store import LogInfo, build_frame_store, inspect_for_store, list_logs
+from dynplan.progress import progress
+from flows.runners import dask_address, dask_scheduler, task_runner
+
+
+@task(name="inspect-log", cache_policy=NO_CACHE)
+def inspect_log_task(path: str) -> LogInfo:
+    return inspect_for_store(path)
+
+
+@flow(name="build-datasets", log_prints=True)
+def build_datasets(log_dir: str = "datasets/logs", out: str = "datasets/frames.zarr",
+                   dask_address: str | None = None) -> dict:  # fmt: skip
+    """Append every new log in `log_dir` to the frames store `out`."""
+    logs = [str(p) for p in list_logs(log_dir)]
+    futures = inspect_log_task.map(logs)
+    infos = [f.result() for f in progress(as_completed(futures), total=len(futures), description="inspect logs")]
+    with dask_scheduler(dask_address):
+        report = build_frame_store(out, infos)
+    for reason in report.failed.values():
+        print(f"skipped: {reason}")
+    print(f"{out}: {len(report.added)} added, {len(report.skipped)} already in, {len(report.failed)} failed; "
+          f"{report.episodes} episodes")  # fmt: skip
+    return report.to_dict()
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(prog="python -m flows.build_datasets", description=__doc__)
+    parser.add_argument("log_dir", help="folder of episode logs (*.mcap)")
+    parser.add_argument("--out", default="datasets/frames.zarr", help="Zarr store to create or extend")
+    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    args = parser.parse_args(argv)
+    address = dask_address(args.dask_address)
+    try:
+        list_logs(args.log_dir)
+    except FileNotFoundError as error:
+        parser.error(str(error))
+    report = build_datasets.with_options(task_runner=task_runner(address))(
+        log_dir=args.log_dir, out=args.out, dask_address=address
+    )
+    if args.json:
+        print(json.dumps(report))
+    return report
+
+
+if __name__ == "__main__":
+    main()
