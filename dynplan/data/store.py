@@ -33,7 +33,7 @@ import dask.array as da
 import numpy as np
 import zarr
 
-from dynplan.env.config import GOAL_VALUE
+from dynplan.env.config import FREE, GOAL_VALUE, obstacle_classes
 from dynplan.logs.reader import LogError, read_episode_log
 
 STORE_FORMAT = "dynplan.frames"
@@ -124,7 +124,7 @@ def _create(group: zarr.Group, first: LogInfo) -> None:
 
     group.attrs.update(
         format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **_geometry(first),
-        pixel_values={"free": 0, "goal": GOAL_VALUE, "obstacles": "45 truck, 85 wagon, 100 tesla, 130 sport, 144 sedan"},
+        pixel_values={"free": FREE, "goal": GOAL_VALUE, **{c.name: c.value for c in obstacle_classes(W)}},
         y_axis="row 0 is the bottom of the world",
     )  # fmt: skip
     group.create_array("frames", shape=(0, T, H, W), chunks=(1, T, H, W), dtype="uint8",

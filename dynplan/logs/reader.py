@@ -27,9 +27,9 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.logs.format import (
     EPOCH_NS,
-    FRAME_PERIOD_NS,
     FORMAT,
     FORMAT_VERSION,
+    FRAME_PERIOD_NS,
     MCAP_MAGIC,
     METADATA_NAME,
     SCHEMA_FRAME,

@@ -33,7 +33,6 @@ from dynplan.logs.format import (
     log_time,
 )
 
-
 #: Uncompressed bytes per MCAP chunk: about 50 frames, so a truncated log keeps most of its frames readable.
 CHUNK_BYTES = 128 * 1024
 
