@@ -14,7 +14,7 @@ from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.data.collect import DEFAULT_RECORDING, record_episode, stale_temporaries
+from dynplan.data.collect import DEFAULT_RECORDING, CollectPlan, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
 from dynplan.progress import progress
 from flows.runners import dask_address, task_runner
@@ -29,12 +29,11 @@ def record_episode_task(out: str, seed: int, config: dict, n_frames: int | None 
 def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int = 0,
                      config: dict | None = None, n_frames: int | None = None) -> dict:  # fmt: skip
     """Record episodes seed … seed+episodes−1 of the road world under `config` into `out`."""
-    if episodes < 1 or seed < 0:
-        raise ValueError(f"episodes must be >= 1 and seed >= 0, got episodes={episodes}, seed={seed}")
+    plan = CollectPlan(episodes=episodes, seed=seed)
     world = RoadConfig.from_dict(config or DEFAULT_RECORDING.model_dump())
     for leftover in stale_temporaries(out):
         leftover.unlink(missing_ok=True)
-    seeds = list(range(seed, seed + episodes))
+    seeds = plan.seeds
     futures = record_episode_task.map(out, seeds, config=unmapped(world.model_dump()), n_frames=unmapped(n_frames))
     results = [f.result() for f in progress(as_completed(futures), total=len(futures), description="collect")]
     counts = Counter(r["status"] for r in results)
@@ -59,8 +58,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     try:
         world = RoadConfig(level=args.level, agent_speed=args.agent_speed)
-        if args.episodes < 1 or args.seed < 0:
-            raise ValueError(f"--episodes must be >= 1 and --seed >= 0 (got {args.episodes}, {args.seed})")
+        CollectPlan(episodes=args.episodes, seed=args.seed)
     except ValueError as error:
         parser.error(str(error))
     runner = task_runner(dask_address(args.dask_address))

@@ -1,9 +1,87 @@
-"""Shared test settings: hypothesis profiles (CI runs more examples, without deadlines)."""
+"""Shared test settings and fixtures: hypothesis profiles, a Prefect API, recorded logs, a Dask cluster."""
 
+import json
 import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import NamedTuple
 
+import pytest
 from hypothesis import HealthCheck, settings
 
 settings.register_profile("dev", max_examples=25, deadline=None)
 settings.register_profile("ci", max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("ci" if os.environ.get("CI") else "dev")
+
+
+@pytest.fixture(scope="session")
+def prefect_api():
+    """A throwaway Prefect API (temporary database) for tests that run flows in-process."""
+    from prefect.testing.utilities import prefect_test_harness
+
+    with prefect_test_harness(server_startup_timeout=120):
+        yield
+
+
+@pytest.fixture(scope="session")
+def recorded_logs(tmp_path_factory) -> Path:
+    """Six 407-frame episode logs (seeds 0–5), written once for the session; tests must not modify them."""
+    from dynplan.data.collect import record_episode
+
+    out = tmp_path_factory.mktemp("logs")
+    for seed in range(6):
+        record_episode(out, seed)
+    return out
+
+
+class DaskCluster(NamedTuple):
+    address: str
+    logs: Path  # folder with scheduler.log and worker*.log
+
+
+@pytest.fixture(scope="session")
+def dask_cluster(tmp_path_factory) -> Iterator[DaskCluster]:
+    """A real dask.distributed cluster on loopback: a scheduler and two one-thread workers, each a process."""
+    folder = tmp_path_factory.mktemp("dask")
+    scheduler_file = folder / "scheduler.json"
+    dask = str(Path(sys.executable).with_name("dask"))
+    common = ["--dashboard-address", ":0", "--host", "127.0.0.1"]
+    procs: list[subprocess.Popen] = []
+
+    def start(log_name: str, *args: str) -> None:
+        with open(folder / log_name, "w") as log:  # the child keeps its own handle
+            procs.append(subprocess.Popen([dask, *args, *common], stdout=subprocess.DEVNULL, stderr=log))
+
+    try:
+        start("scheduler.log", "scheduler", "--port", "0", "--scheduler-file", str(scheduler_file))
+        deadline = time.monotonic() + 60
+        while not scheduler_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.2)
+        address = json.loads(scheduler_file.read_text())["address"]
+        for i in range(2):
+            start(
+                f"worker{i}.log",
+                "worker",
+                "--scheduler-file",
+                str(scheduler_file),
+                "--nworkers",
+                "1",
+                "--nthreads",
+                "1",
+            )
+        from distributed import Client
+
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(2, timeout=120)
+        yield DaskCluster(address, folder)
+    finally:
+        for proc in reversed(procs):
+            proc.terminate()
+        for proc in procs:
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()

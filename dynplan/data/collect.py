@@ -12,6 +12,9 @@ import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from pydantic import Field
+
+from dynplan.config import Config
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.logs.reader import LogError, read_episode_log
@@ -20,6 +23,17 @@ from dynplan.logs.writer import write_episode_log
 #: Defaults of a recording: the paper's level and the longest episode (the 1× agent's 407 frames), so that one
 #: log serves both agent speeds.
 DEFAULT_RECORDING = RoadConfig(level=6, agent_speed=0.5)
+
+
+class CollectPlan(Config):
+    """Which episodes a collection records: seeds seed … seed + episodes − 1."""
+
+    episodes: int = Field(10, ge=1, le=10_000_000, description="number of episodes")
+    seed: int = Field(0, ge=0, le=2**62, description="seed of the first episode")
+
+    @property
+    def seeds(self) -> list[int]:
+        return list(range(self.seed, self.seed + self.episodes))
 
 
 @dataclass(frozen=True)

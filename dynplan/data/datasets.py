@@ -1,0 +1,90 @@
+"""Torch datasets over a Zarr store: single frames (for the VQ-VAE) and windows of consecutive frames (4 of
+context + 1 target, for the PixelCNN), split by episode into train and validation.
+
+The split is a pure function of each episode's seed, so it never changes as the store grows and an episode is
+never in both splits. Episodes are read whole (one Zarr chunk) and kept in memory once read.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Literal
+
+import numpy as np
+import torch
+import zarr
+from torch.utils.data import Dataset
+
+Split = Literal["train", "validation", "all"]
+#: Frames of context a window gives before its target (SPEC §2: the PixelCNN conditions on the last 4).
+CONTEXT = 4
+
+
+def is_validation(seeds: np.ndarray, val_fraction: float) -> np.ndarray:
+    """Deterministic per-seed assignment to the validation split (a multiplicative hash of the seed)."""
+    if not 0.0 <= val_fraction < 1.0:
+        raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
+    hashed = (np.asarray(seeds, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(11)
+    return hashed.astype(np.float64) / 2.0**53 < val_fraction
+
+
+class _EpisodeArray(Dataset):
+    """Shared loading: which episodes of `array` are in the split, each read once on first use."""
+
+    def __init__(self, store: str | os.PathLike, split: Split = "train", val_fraction: float = 0.1,
+                 array: str = "frames"):  # fmt: skip
+        if split not in ("train", "validation", "all"):
+            raise ValueError(f"split must be 'train', 'validation' or 'all', got {split!r}")
+        group = zarr.open_group(str(store), mode="r")
+        if array not in group:
+            raise KeyError(f"{store}: no array {array!r} (has {sorted(group.array_keys())})")
+        self.array = group[array]
+        self.seeds = group["seed"][:]
+        n_episodes = min(len(self.seeds), self.array.shape[0])
+        validation = is_validation(self.seeds[:n_episodes], val_fraction)
+        keep = {"train": ~validation, "validation": validation, "all": np.ones(n_episodes, bool)}[split]
+        self.episodes = np.nonzero(keep)[0]
+        self.n_frames = self.array.shape[1]
+        self._cache: dict[int, np.ndarray] = {}
+
+    def episode(self, i: int) -> np.ndarray:
+        """All frames (T, …) of the split's i-th episode (read on first use, then kept)."""
+        episode = int(self.episodes[i])
+        if episode not in self._cache:
+            self._cache[episode] = self.array[episode]
+        return self._cache[episode]
+
+
+class FrameDataset(_EpisodeArray):
+    """Single frames: item → uint8 tensor (H, W) (or a code grid (h, w) with array="codes")."""
+
+    def __len__(self) -> int:
+        return len(self.episodes) * self.n_frames
+
+    def __getitem__(self, index: int) -> torch.Tensor:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} frames")
+        episode, t = divmod(int(index), self.n_frames)
+        return torch.from_numpy(np.array(self.episode(episode)[t]))
+
+
+class WindowDataset(_EpisodeArray):
+    """Windows of `context + 1` consecutive frames of one episode: item → (context (4, …), target (…))."""
+
+    def __init__(self, store: str | os.PathLike, split: Split = "train", val_fraction: float = 0.1,
+                 array: str = "frames", context: int = CONTEXT):  # fmt: skip
+        super().__init__(store, split, val_fraction, array)
+        if not 1 <= context < self.n_frames:
+            raise ValueError(f"context must be in [1, {self.n_frames - 1}], got {context}")
+        self.context = context
+        self.per_episode = self.n_frames - context
+
+    def __len__(self) -> int:
+        return len(self.episodes) * self.per_episode
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} windows")
+        episode, start = divmod(int(index), self.per_episode)
+        window = self.episode(episode)[start : start + self.context + 1]
+        return torch.from_numpy(np.array(window[:-1])), torch.from_numpy(np.array(window[-1]))
