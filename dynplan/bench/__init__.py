@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from dynplan.bench.data import bench_data
 from dynplan.bench.world import bench_world
 
 Results = dict[str, dict[str, float]]
@@ -16,6 +17,7 @@ Results = dict[str, dict[str, float]]
 #: name → benchmark; later issues register theirs here.
 BENCHMARKS: dict[str, Callable[..., Results]] = {
     "world": bench_world,
+    "data": bench_data,
 }
 
 __all__ = ["BENCHMARKS", "Results"]
