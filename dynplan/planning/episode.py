@@ -37,8 +37,14 @@ class EpisodeResult:
                 "decision_ms_mean": float(ms.mean()), "decision_ms_median": float(np.median(ms))}  # fmt: skip
 
 
-def run_episode(world: World, planner: MCTSPlanner | RandomPlanner, model: ForwardModel | None,
-                agent_speed: float, rollout_steps: int = 1, on_decision: DecisionHook | None = None) -> EpisodeResult:  # fmt: skip
+def run_episode(
+    world: World,
+    planner: MCTSPlanner | RandomPlanner,
+    model: ForwardModel | None,
+    agent_speed: float,
+    rollout_steps: int = 1,
+    on_decision: DecisionHook | None = None,
+) -> EpisodeResult:
     """Play `world` (e.g. read from a log) at `agent_speed` until goal, death or timeout.
 
     Each decision asks `model` for the next `rollout_steps` frames given the frames observed so far (a random

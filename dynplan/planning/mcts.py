@@ -67,7 +67,7 @@ class Decision:
     search_ms: float
 
 
-def goal_prior(position: np.ndarray, goal: np.ndarray, weights: np.ndarray = np.array(PAPER_PRIOR)) -> np.ndarray:
+def goal_prior(position: np.ndarray, goal: np.ndarray, weights: tuple[float, ...] = PAPER_PRIOR) -> np.ndarray:
     """(8,) prior over actions from the bearing to `goal` (uniform if the goal is unknown). NumPy twin of the
     compiled `_prior`, for tests and tools."""
     out = np.empty(N_ACTIONS)
