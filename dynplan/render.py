@@ -66,3 +66,35 @@ def write_gif(
     buffer = io.BytesIO()
     pictures[0].save(buffer, format="GIF", save_all=True, append_images=pictures[1:], duration=int(1000 / fps), loop=0)
     return write_bytes_atomic(path, buffer.getvalue())
+
+
+FALSE_NEGATIVE = np.array([230, 30, 30], np.uint8)  # obstacle predicted as free: red
+FALSE_POSITIVE = np.array([40, 90, 255], np.uint8)  # free predicted as obstacle: blue
+PREDICTED_GOAL = np.array([255, 150, 0], np.uint8)  # orange, drawn over the true goal (yellow)
+
+
+def error_image(true: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """The paper's Figure 1 error panel for one frame pair (H, W) → RGB (H, W, 3), row 0 at the bottom:
+    false negatives red, false positives blue, true goal yellow, predicted goal orange (orange alone = exact)."""
+    from dynplan.env.config import FREE, GOAL_VALUE
+
+    colours = palette()
+    true_obstacle = (true != FREE) & (true != GOAL_VALUE)
+    predicted_obstacle = (predicted != FREE) & (predicted != GOAL_VALUE)
+    image = np.broadcast_to(colours[FREE], (*true.shape, 3)).copy()
+    image[true_obstacle & predicted_obstacle] = colours[true[true_obstacle & predicted_obstacle]]
+    image[true_obstacle & ~predicted_obstacle] = FALSE_NEGATIVE
+    image[~true_obstacle & predicted_obstacle] = FALSE_POSITIVE
+    image[true == GOAL_VALUE] = colours[GOAL_VALUE]
+    image[predicted == GOAL_VALUE] = PREDICTED_GOAL
+    return np.flip(image, axis=0)
+
+
+def side_by_side(images: Sequence[np.ndarray], gap: int = 1) -> np.ndarray:
+    """Concatenate RGB images (H, W, 3) left to right with a white `gap`-pixel column between them."""
+    H = images[0].shape[0]
+    spacer = np.full((H, gap, 3), 255, np.uint8)
+    parts: list[np.ndarray] = []
+    for i, image in enumerate(images):
+        parts += [spacer, image] if i else [image]
+    return np.concatenate(parts, axis=1)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from dynplan.bench.data import bench_data
+from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.world import bench_world
 
 Results = dict[str, dict[str, float]]
@@ -18,6 +19,7 @@ Results = dict[str, dict[str, float]]
 BENCHMARKS: dict[str, Callable[..., Results]] = {
     "world": bench_world,
     "data": bench_data,
+    "mcts": bench_mcts,
 }
 
 __all__ = ["BENCHMARKS", "Results"]

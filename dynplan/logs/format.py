@@ -8,6 +8,8 @@ Topics (log time = EPOCH + t · FRAME_PERIOD; each message's own timestamp is eq
 | /world/goal    | foxglove.PoseInFrame| frame   | goal block's lower-left corner: position.x = col, .y = row |
 | /agent/pose    | foxglove.PoseInFrame| step    | (optional) agent position, same axes                       |
 | /agent/step    | JSON (jsonschema)   | step    | (optional) {t, action, reward, outcome}                    |
+| /agent/view    | foxglove.RawImage   | step    | (optional) the world frame with the agent drawn (value 200) |
+| /planner/imagined | foxglove.RawImage | decision| (optional) the k predicted frames t+1 … t+k, side by side   |
 
 The metadata record `dynplan` holds the format and version, the world config (JSON), seed, height, width,
 n_frames, agent_start (JSON) and the dynplan version. Log times start at a fixed epoch rather than the wall
@@ -28,6 +30,8 @@ TOPIC_FRAME = "/world/frame"
 TOPIC_GOAL = "/world/goal"
 TOPIC_AGENT_POSE = "/agent/pose"
 TOPIC_AGENT_STEP = "/agent/step"
+TOPIC_AGENT_VIEW = "/agent/view"
+TOPIC_IMAGINED = "/planner/imagined"
 
 SCHEMA_FRAME = "foxglove.RawImage"
 SCHEMA_POSE = "foxglove.PoseInFrame"

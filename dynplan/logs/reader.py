@@ -38,6 +38,7 @@ from dynplan.logs.format import (
     TOPIC_AGENT_STEP,
     TOPIC_FRAME,
     TOPIC_GOAL,
+    TOPIC_IMAGINED,
     AgentTrack,
 )
 
@@ -90,6 +91,7 @@ class EpisodeLog:
     goal: np.ndarray
     agent_start: np.ndarray
     agent: AgentTrack | None
+    imagined: dict[int, np.ndarray] | None = None  # replays: {t: (k, H, W) frames the planner predicted at t}
 
     @property
     def n_frames(self) -> int:
@@ -216,7 +218,19 @@ def read_episode_log(path: str | os.PathLike) -> EpisodeLog:
     frames = np.frombuffer(b"".join(im.data for im in images), np.uint8).reshape(n_frames, height, width)[:, ::-1]
     goal = np.array([(g.pose.position.y, g.pose.position.x) for g in goals], dtype=np.float64)
     agent = _agent_track(scan) if TOPIC_AGENT_POSE in listing.topics else None
-    return EpisodeLog(path, meta, config, seed, np.ascontiguousarray(frames), goal, agent_start, agent)
+    imagined = None
+    if TOPIC_IMAGINED in listing.topics:
+        strips = _decode(scan, TOPIC_IMAGINED, SCHEMA_FRAME)
+        records = scan.messages[TOPIC_IMAGINED]
+        imagined = {
+            int((r.log_time - EPOCH_NS) // FRAME_PERIOD_NS): np.frombuffer(im.data, np.uint8)
+            .reshape(im.height, im.width)[::-1]
+            .reshape(im.height, im.width // width, width)
+            .transpose(1, 0, 2)
+            .copy()
+            for r, im in zip(records, strips, strict=True)
+        }
+    return EpisodeLog(path, meta, config, seed, np.ascontiguousarray(frames), goal, agent_start, agent, imagined)
 
 
 def _agent_track(scan: _Scan) -> AgentTrack:

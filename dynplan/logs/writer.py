@@ -27,11 +27,14 @@ from dynplan.logs.format import (
     STEP_JSON_SCHEMA,
     TOPIC_AGENT_POSE,
     TOPIC_AGENT_STEP,
+    TOPIC_AGENT_VIEW,
     TOPIC_FRAME,
     TOPIC_GOAL,
+    TOPIC_IMAGINED,
     AgentTrack,
     log_time,
 )
+from dynplan.render import draw_agent
 
 #: Uncompressed bytes per MCAP chunk: about 50 frames, so a truncated log keeps most of its frames readable.
 CHUNK_BYTES = 128 * 1024
@@ -75,8 +78,10 @@ def episode_metadata(world: World, n_frames: int, kind: str) -> dict[str, str]:
 
 
 def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack | None = None,
-                      n_frames: int | None = None) -> Path:  # fmt: skip
-    """Write `world`'s first `n_frames` frames (default all) and goal track, plus `agent` if given, to `path`.
+                      n_frames: int | None = None, imagined: dict[int, np.ndarray] | None = None) -> Path:  # fmt: skip
+    """Write `world`'s first `n_frames` frames (default all) and goal track to `path`, plus, for a replay, the
+    `agent`'s track (pose, step, and its view: the frame with the agent drawn) and the planner's `imagined`
+    frames per decision ({t: (k, H, W) predicted frames t+1 … t+k}).
 
     The file appears only when complete (temporary file, then rename).
     """
@@ -97,6 +102,17 @@ def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack |
             writer.add_message(goal_channel, time, _pose(t, world.goal[t]).SerializeToString(), time, t)
         if agent is not None:
             _write_agent(writer, agent, pose_schema)
+            view_channel = writer.register_channel(TOPIC_AGENT_VIEW, "protobuf", frame_schema)
+            views = draw_agent(world.frames[agent.t], agent.position)
+            for i, t in enumerate(agent.t):
+                time = log_time(int(t))
+                writer.add_message(view_channel, time, _image(int(t), views[i]).SerializeToString(), time, i)
+        if imagined:
+            imagined_channel = writer.register_channel(TOPIC_IMAGINED, "protobuf", frame_schema)
+            for i, (t, frames) in enumerate(sorted(imagined.items())):
+                strip = np.concatenate(list(frames), axis=1)  # (H, k·W): predicted frames left to right
+                time = log_time(t)
+                writer.add_message(imagined_channel, time, _image(t, strip).SerializeToString(), time, i)
         writer.finish()
     return Path(path)
 

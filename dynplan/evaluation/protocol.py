@@ -1,0 +1,113 @@
+"""The evaluation protocol (SPEC §4): every technique plays the same recorded episodes.
+
+One case = (technique, agent speed, rollout steps, episode seed). Each case's result is a small JSON file, so
+an evaluation resumes where it stopped and can be spread over sessions or a Dask cluster. Techniques build
+their planner and forward model from the recorded world; the learned models register here when they exist.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+import zlib
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from dynplan.data.collect import log_path
+from dynplan.env.config import RoadConfig
+from dynplan.env.road import World
+from dynplan.files import write_bytes_atomic
+from dynplan.logs.reader import read_episode_log
+from dynplan.planning.episode import run_episode
+from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
+from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
+
+#: The evaluation episodes' seeds: a range of their own, far from training seeds (which start at 0).
+EVAL_SEED_START = 1_000_000
+EVAL_EPISODES = 100
+AGENT_SPEEDS = (1.0, 0.5)
+ROLLOUT_STEPS = (1, 3, 5, 10)
+
+#: technique → factory of its forward model for a recorded world (None: the agent needs no model).
+MODELS: dict[str, Callable[[World], ForwardModel | None]] = {
+    "oracle": OracleModel,
+    "zero": lambda world: ZeroModel(),
+    "random": lambda world: None,
+}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One evaluation episode. `rollout_steps` is None for the random agent, which does not search."""
+
+    technique: str
+    agent_speed: float
+    rollout_steps: int | None
+    seed: int
+
+    def __post_init__(self) -> None:
+        if self.technique not in MODELS:
+            raise ValueError(f"unknown technique {self.technique!r}; known: {sorted(MODELS)}")
+
+    @property
+    def group(self) -> str:
+        k = "none" if self.rollout_steps is None else self.rollout_steps
+        return f"{self.technique}/speed{self.agent_speed:g}_k{k}"
+
+    def result_path(self, results_dir: str | os.PathLike) -> Path:
+        return Path(results_dir) / "episodes" / self.group / f"seed{self.seed}.json"
+
+    def planner_seed(self) -> int:
+        """A seed for the planner's own randomness, fixed per case."""
+        return zlib.crc32(f"{self.group}/{self.seed}".encode())
+
+
+def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
+          rollout_steps: tuple[int, ...] = ROLLOUT_STEPS, episodes: int = EVAL_EPISODES,
+          first_seed: int = EVAL_SEED_START) -> list[Case]:  # fmt: skip
+    """Every case of the table: the random agent once per speed, searching techniques once per horizon."""
+    out = []
+    for technique in techniques:
+        ks: tuple[int | None, ...] = (None,) if technique == "random" else rollout_steps
+        for speed in speeds:
+            for k in ks:
+                out += [Case(technique, speed, k, first_seed + i) for i in range(episodes)]
+    return out
+
+
+def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100) -> dict:
+    """Play one case against its recorded episode and write its result JSON (or return the existing one)."""
+    path = case.result_path(results_dir)
+    if path.exists():
+        try:
+            return json.loads(path.read_text())
+        except json.JSONDecodeError:
+            pass  # a damaged result is recomputed
+    start = time.perf_counter()
+    log = read_episode_log(log_path(log_dir, case.seed))
+    world = log.world()
+    model = MODELS[case.technique](world)
+    if case.rollout_steps is None:
+        planner = RandomPlanner(case.planner_seed())
+    else:
+        config = MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts)
+        max_steps = RoadConfig.from_dict(log.config.model_dump(), agent_speed=case.agent_speed).max_steps
+        planner = MCTSPlanner(config, case.agent_speed, max_steps, seed=case.planner_seed())
+    result = run_episode(world, planner, model, case.agent_speed, case.rollout_steps or 1)
+    record = {
+        **asdict(case),
+        "outcome": result.outcome,
+        "steps": result.steps,
+        "playouts": playouts,
+        "decision_ms": [round(ms, 4) for ms in result.decision_ms],
+        "wall_s": round(time.perf_counter() - start, 4),
+    }
+    write_bytes_atomic(path, json.dumps(record).encode())
+    return record
+
+
+def pending(all_cases: list[Case], results_dir: str | os.PathLike) -> list[Case]:
+    """The cases without a result file yet (what a resumed evaluation still has to play)."""
+    return [c for c in all_cases if not c.result_path(results_dir).exists()]

@@ -1,0 +1,99 @@
+"""Replay a recorded episode through a planner: the outcome, a replay log Foxglove can show, and a GIF.
+
+The GIF follows the reference's figure: per decision, the observed frame with the agent, the true frame k steps
+ahead, the model's prediction of it, and their difference (false negatives red, false positives blue, true
+goal yellow, predicted goal orange).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dynplan.env.config import RoadConfig
+from dynplan.evaluation.protocol import MODELS
+from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
+from dynplan.logs.writer import write_episode_log
+from dynplan.planning.episode import run_episode
+from dynplan.planning.forward import Prediction
+from dynplan.planning.mcts import Decision, MCTSConfig, MCTSPlanner, RandomPlanner
+from dynplan.render import colorize, error_image, side_by_side, write_gif
+
+
+def prepare(log: str | os.PathLike, planner: str, agent_speed: float, rollout_steps: int,
+            playouts: int) -> tuple[EpisodeLog, RoadConfig, MCTSConfig]:  # fmt: skip
+    """Check a replay's inputs before running it: the log (LogError), the options (ConfigError/ValueError)."""
+    if planner not in MODELS:
+        raise ValueError(f"planner must be one of {sorted(MODELS)}, got {planner!r}")
+    mcts = MCTSConfig(rollout_steps=rollout_steps, playouts=playouts)
+    config = RoadConfig(agent_speed=agent_speed)  # validates the speed before the log is read
+    recorded = read_episode_log(log)
+    config = RoadConfig.from_dict(recorded.config.model_dump(), agent_speed=agent_speed)
+    if config.max_steps > recorded.n_frames:
+        raise LogError(log, f"holds {recorded.n_frames} frames; agent speed {agent_speed:g} needs {config.max_steps}")
+    return recorded, config, mcts
+
+
+@dataclass(frozen=True)
+class ReplayResult:
+    """What happened, how long decisions took, and where the outputs went."""
+
+    log: str
+    planner: str
+    agent_speed: float
+    rollout_steps: int
+    outcome: str
+    steps: int
+    decision_ms_median: float
+    decision_ms_mean: float
+    out: str | None
+    gif: str | None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float = 1.0, rollout_steps: int = 3,
+           playouts: int = 100, out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None,
+           seed: int = 0) -> ReplayResult:  # fmt: skip
+    """Run `planner` ("oracle", "zero" or "random") on the episode recorded in `log`."""
+    recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts)
+    world = recorded.world()
+    model = MODELS[planner](world)
+    agent = RandomPlanner(seed) if planner == "random" else MCTSPlanner(mcts, agent_speed, config.max_steps, seed)
+    imagined: dict[int, np.ndarray] = {}
+    panels: list[np.ndarray] = []
+
+    def record(t: int, position: np.ndarray, prediction: Prediction | None, decision: Decision) -> None:
+        if prediction is not None:
+            imagined[t] = prediction.frames
+        if gif is not None:
+            panels.append(_gif_panel(world.frames, t, position, prediction, rollout_steps))
+
+    result = run_episode(world, agent, model, agent_speed, rollout_steps, on_decision=record)
+    if out is not None:
+        write_episode_log(out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None)
+    if gif is not None:
+        write_gif(gif, np.stack(panels), fps=8, scale=4)
+    ms = np.asarray(result.decision_ms)
+    return ReplayResult(str(log), planner, agent_speed, rollout_steps, result.outcome, result.steps,
+                        round(float(np.median(ms)), 4), round(float(ms.mean()), 4),
+                        None if out is None else str(out), None if gif is None else str(gif))  # fmt: skip
+
+
+def _gif_panel(frames: np.ndarray, t: int, position: np.ndarray, prediction: Prediction | None, k: int) -> np.ndarray:
+    """Observed frame | true frame at the horizon | predicted frame at the horizon | error."""
+    h = min(k, len(frames) - 1 - t) if prediction is None else len(prediction.frames)
+    truth = frames[t + h]
+    predicted = prediction.frames[h - 1] if prediction is not None else np.zeros_like(truth)
+    return side_by_side([colorize(frames[t], position), colorize(truth), colorize(predicted),
+                         error_image(truth, predicted)])  # fmt: skip
+
+
+def default_outputs(log: str | os.PathLike, planner: str) -> Path:
+    """Default replay log path: beside the input, named for the planner."""
+    log = Path(log)
+    return log.with_name(f"{log.stem}.replay-{planner}.mcap")

@@ -1,0 +1,108 @@
+"""Aggregate per-episode results into the paper's Table 1: G / T / D and S (mean ± std of steps over the
+episodes not died), with decision times, side by side with the paper's numbers."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from dynplan.evaluation.paper import PAPER_RANDOM_GOALS, PAPER_TABLE1
+from dynplan.files import write_bytes_atomic
+
+TECHNIQUE_ORDER = ("oracle", "mid", "samples5", "samples10", "zero", "random")
+
+
+def load_results(results_dir: str | os.PathLike) -> list[dict]:
+    """Every per-episode result under `results_dir`/episodes."""
+    return [json.loads(p.read_text()) for p in sorted(Path(results_dir).glob("episodes/*/*/seed*.json"))]
+
+
+def _sort_key(row: dict) -> tuple:
+    technique = row["technique"]
+    rank = TECHNIQUE_ORDER.index(technique) if technique in TECHNIQUE_ORDER else len(TECHNIQUE_ORDER)
+    return (-row["agent_speed"], rank, technique, row["rollout_steps"] or 0)
+
+
+def aggregate(results: list[dict]) -> list[dict]:
+    """One row per (technique, agent speed, rollout steps)."""
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in results:
+        groups[(r["technique"], r["agent_speed"], r["rollout_steps"])].append(r)
+    rows = []
+    for (technique, speed, k), episodes in groups.items():
+        outcomes = [e["outcome"] for e in episodes]
+        survived = np.array([e["steps"] for e in episodes if e["outcome"] != "death"], dtype=np.float64)
+        times = np.concatenate([np.asarray(e["decision_ms"], dtype=np.float64) for e in episodes])
+        rows.append({
+            "technique": technique,
+            "agent_speed": speed,
+            "rollout_steps": k,
+            "episodes": len(episodes),
+            "G": outcomes.count("goal"),
+            "T": outcomes.count("timeout"),
+            "D": outcomes.count("death"),
+            "S_mean": round(float(survived.mean()), 1) if len(survived) else None,
+            "S_std": round(float(survived.std()), 1) if len(survived) else None,
+            "decision_ms_median": round(float(np.median(times)), 4) if len(times) else None,
+            "decision_ms_mean": round(float(times.mean()), 4) if len(times) else None,
+            "wall_s": round(sum(e["wall_s"] for e in episodes), 1),
+        })  # fmt: skip
+    return sorted(rows, key=_sort_key)
+
+
+def _cell(g, t, d, s_mean, s_std) -> str:
+    s = "–" if s_mean is None else f"{s_mean:.0f} ± {s_std:.0f}"
+    return f"{g}/{t}/{d}, {s}"
+
+
+def render_markdown(rows: list[dict]) -> str:
+    """The table in the paper's layout: one line per technique and speed, a cell per rollout length."""
+    ks = sorted({r["rollout_steps"] for r in rows if r["rollout_steps"] is not None})
+    by_key = {(r["technique"], r["agent_speed"], r["rollout_steps"]): r for r in rows}
+    header = "| technique | " + " | ".join(f"k = {k}: G/T/D, S" for k in ks) + " | decision ms (median) |"
+    lines = [header, "|" + " --- |" * (len(ks) + 2)]
+    seen = []
+    for r in rows:
+        key = (r["technique"], r["agent_speed"])
+        if key in seen:
+            continue
+        seen.append(key)
+        technique, speed = key
+        label = f"{speed * 2:g}× {technique}"
+        if technique == "random":
+            r0 = by_key[(technique, speed, None)]
+            paper = PAPER_RANDOM_GOALS.get(speed)
+            note = f" (paper: {paper} goals)" if paper is not None else ""
+            cell = _cell(r0["G"], r0["T"], r0["D"], r0["S_mean"], r0["S_std"]) + note
+            lines.append(f"| {label} | " + " | ".join([cell] + ["″"] * (len(ks) - 1)) +
+                         f" | {r0['decision_ms_median']} |")  # fmt: skip
+            continue
+        cells, paper_cells, times = [], [], []
+        for k in ks:
+            row = by_key.get((technique, speed, k))
+            cells.append(_cell(row["G"], row["T"], row["D"], row["S_mean"], row["S_std"]) if row else "")
+            times.append(f"{row['decision_ms_median']}" if row else "")
+            paper = PAPER_TABLE1.get((technique, speed, k))
+            paper_cells.append(_cell(*paper) if paper else "")
+        lines.append(f"| {label} (ours) | " + " | ".join(cells) + " | " + " / ".join(t for t in times if t) + " |")
+        if any(paper_cells):
+            lines.append(f"| {label} (paper) | " + " | ".join(paper_cells) + " | |")
+    return "\n".join(lines) + "\n"
+
+
+def write_table(rows: list[dict], results_dir: str | os.PathLike, command: str) -> tuple[Path, Path]:
+    """Write table1.json and table1.md (with the command that regenerates them) into `results_dir`."""
+    results_dir = Path(results_dir)
+    json_path = write_bytes_atomic(results_dir / "table1.json", (json.dumps(rows, indent=1) + "\n").encode())
+    text = (
+        "# Table 1: MCTS agents over the same recorded episodes\n\n"
+        f"Regenerate with `{command}`. Cells: goals / timeouts / deaths, and steps (mean ± std over the episodes "
+        "not died). Speeds: 2× = 1.0 px/step (T = 203), 1× = 0.5 px/step (T = 407). 100 playouts per decision.\n\n"
+        + render_markdown(rows)
+    )
+    md_path = write_bytes_atomic(results_dir / "table1.md", text.encode())
+    return json_path, md_path

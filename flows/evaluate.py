@@ -1,0 +1,95 @@
+"""`python -m flows.evaluate`: the paper's Table 1 protocol over recorded evaluation episodes.
+
+Records the evaluation episodes if they are missing (seeds 1,000,000 …), plays every (technique, agent speed,
+rollout steps, episode) case as its own Prefect task — skipping cases whose result file exists, so an
+interrupted evaluation resumes — then aggregates every result present into table1.json / table1.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import sys
+from dataclasses import asdict
+
+from prefect import flow, task, unmapped
+from prefect.cache_policies import NO_CACHE
+from prefect.futures import as_completed
+
+from dynplan.evaluation.protocol import (
+    AGENT_SPEEDS,
+    EVAL_EPISODES,
+    EVAL_SEED_START,
+    MODELS,
+    ROLLOUT_STEPS,
+    Case,
+    cases,
+    pending,
+    run_case,
+)
+from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
+from dynplan.progress import progress
+from flows.collect import collect_episodes
+from flows.runners import dask_address, task_runner
+
+DEFAULT_COMMAND = "python -m flows.evaluate"
+
+
+@task(name="evaluate-episode", cache_policy=NO_CACHE)
+def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int) -> dict:
+    return run_case(Case(**case), log_dir, results_dir, playouts)
+
+
+@flow(name="evaluate-planner", log_prints=True)
+def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[float] | None = None,
+                     rollout_steps: list[int] | None = None, episodes: int = EVAL_EPISODES,
+                     playouts: int = 100, log_dir: str = "datasets/eval_logs",
+                     results_dir: str = "datasets/results", command: str = DEFAULT_COMMAND) -> list[dict]:  # fmt: skip
+    """Play the missing cases and write the aggregated table."""
+    techniques = techniques or ["oracle", "zero", "random"]
+    collect_episodes(out=log_dir, episodes=episodes, seed=EVAL_SEED_START)
+    todo = pending(cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
+                         episodes), results_dir)  # fmt: skip
+    print(f"{len(todo)} episodes to play")
+    futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
+                                     unmapped(playouts))  # fmt: skip
+    for future in progress(as_completed(futures), total=len(futures), description="evaluate"):
+        future.result()
+    rows = aggregate(load_results(results_dir))
+    write_table(rows, results_dir, command)
+    print("\n" + render_markdown(rows))
+    return rows
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = argparse.ArgumentParser(prog="python -m flows.evaluate", description=__doc__)
+    parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=sorted(MODELS))
+    parser.add_argument("--agent-speeds", nargs="+", type=float, default=list(AGENT_SPEEDS))
+    parser.add_argument("--rollout-steps", nargs="+", type=int, default=list(ROLLOUT_STEPS))
+    parser.add_argument("--episodes", type=int, default=EVAL_EPISODES, help="evaluation episodes (default 100)")
+    parser.add_argument("--playouts", type=int, default=100, help="MCTS playouts per decision (default 100)")
+    parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
+    parser.add_argument("--results-dir", default="datasets/results", help="per-episode results and the table")
+    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
+    args = parser.parse_args(argv)
+    problems = [f"--agent-speeds {s} must be > 0" for s in args.agent_speeds if s <= 0]
+    problems += [f"--rollout-steps {k} must be in [1, 64]" for k in args.rollout_steps if not 1 <= k <= 64]
+    problems += [f"--episodes {args.episodes} must be >= 1"] if args.episodes < 1 else []
+    problems += [f"--playouts {args.playouts} must be >= 1"] if args.playouts < 1 else []
+    if problems:
+        parser.error("; ".join(problems))
+    command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
+    rows = evaluate_planner.with_options(task_runner=task_runner(dask_address(args.dask_address)))(
+        techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
+        episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
+        command=command,
+    )  # fmt: skip
+    if args.json:
+        print(json.dumps(rows))
+    return rows
+
+
+if __name__ == "__main__":
+    main()
