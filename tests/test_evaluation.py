@@ -1,0 +1,139 @@
+"""Evaluation protocol, Table 1 aggregation, and replay (library, flow and command line)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from dynplan.config import ConfigError
+from dynplan.data.collect import log_path, record_episode
+from dynplan.evaluation.protocol import EVAL_SEED_START, Case, cases, pending, run_case
+from dynplan.evaluation.replay import replay
+from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
+from dynplan.logs import LogError, read_episode_log
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def eval_logs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("eval_logs")
+    for i in range(2):
+        record_episode(out, EVAL_SEED_START + i)
+    return out
+
+
+def test_cases_cover_the_table():
+    all_cases = cases(["oracle", "zero", "random"], episodes=3)
+    assert len(all_cases) == 3 * (2 * 4 + 2 * 4 + 2)
+    assert {c.rollout_steps for c in all_cases if c.technique == "random"} == {None}
+    assert all(c.seed >= EVAL_SEED_START for c in all_cases)
+    with pytest.raises(ValueError, match="unknown technique 'magic'"):
+        Case("magic", 1.0, 3, 0)
+
+
+def test_run_case_writes_a_result_and_resumes(tmp_path, eval_logs):
+    case = Case("oracle", 1.0, 3, EVAL_SEED_START)
+    record = run_case(case, eval_logs, tmp_path)
+    path = case.result_path(tmp_path)
+    assert path.is_file() and record["outcome"] in {"goal", "timeout", "death"}
+    assert len(record["decision_ms"]) == record["steps"]
+    stamp = path.stat().st_mtime_ns
+    assert run_case(case, eval_logs, tmp_path) == record
+    assert path.stat().st_mtime_ns == stamp
+    assert pending([case, Case("oracle", 1.0, 5, EVAL_SEED_START)], tmp_path) == [
+        Case("oracle", 1.0, 5, EVAL_SEED_START)
+    ]
+    random = run_case(Case("random", 0.5, None, EVAL_SEED_START + 1), eval_logs, tmp_path)
+    assert random["rollout_steps"] is None
+
+
+def test_aggregate_counts_outcomes_and_steps_over_survivors():
+    def result(outcome, steps, k=3):
+        return {"technique": "oracle", "agent_speed": 1.0, "rollout_steps": k, "outcome": outcome, "steps": steps,
+                "decision_ms": [1.0, 3.0], "wall_s": 0.5}  # fmt: skip
+
+    rows = aggregate([result("goal", 10), result("goal", 30), result("timeout", 198), result("death", 5)])
+    [row] = rows
+    assert (row["episodes"], row["G"], row["T"], row["D"]) == (4, 2, 1, 1)
+    assert row["S_mean"] == pytest.approx(np.mean([10, 30, 198]), abs=0.05)
+    assert row["S_std"] == pytest.approx(np.std([10, 30, 198]), abs=0.05)
+    assert row["decision_ms_median"] == 2.0
+    table = render_markdown(rows)
+    assert "| 2× oracle (ours) | " in table and "| 2× oracle (paper) | " in table
+    assert "2/1/1, 79 ± 84" in table and "100/0/0, 36 ± 18" in table
+
+
+def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path, eval_logs, prefect_api):
+    from flows.evaluate import evaluate_planner
+
+    results = tmp_path / "results"
+    kwargs = dict(techniques=["oracle", "random"], agent_speeds=[1.0], rollout_steps=[1, 3], episodes=2,
+                  log_dir=str(eval_logs), results_dir=str(results))  # fmt: skip
+    rows = evaluate_planner(**kwargs)
+    assert {(r["technique"], r["rollout_steps"]) for r in rows} == {("oracle", 1), ("oracle", 3), ("random", None)}
+    keys = {"technique", "agent_speed", "rollout_steps", "episodes", "G", "T", "D", "S_mean", "S_std",
+            "decision_ms_median"}  # fmt: skip
+    table = json.loads((results / "table1.json").read_text())
+    assert all(keys <= set(row) for row in table) and all(row["episodes"] == 2 for row in table)
+    assert "Regenerate with `python -m flows.evaluate`" in (results / "table1.md").read_text()
+    stamps = {p: p.stat().st_mtime_ns for p in results.glob("episodes/*/*/*.json")}
+    assert len(stamps) == 6
+    evaluate_planner(**kwargs)
+    assert {p: p.stat().st_mtime_ns for p in results.glob("episodes/*/*/*.json")} == stamps
+    assert len(load_results(results)) == 6
+    write_table(rows, tmp_path / "again", "cmd")
+    assert (tmp_path / "again" / "table1.md").is_file()
+
+
+def test_replay_round_trips_through_the_reader(tmp_path, eval_logs):
+    log = log_path(eval_logs, EVAL_SEED_START)
+    out, gif = tmp_path / "replay.mcap", tmp_path / "replay.gif"
+    result = replay(log, "oracle", agent_speed=1.0, rollout_steps=3, out=out, gif=gif)
+    assert result.outcome in {"goal", "timeout", "death"} and result.steps >= 1
+    recorded, replayed = read_episode_log(log), read_episode_log(out)
+    np.testing.assert_array_equal(replayed.frames, recorded.frames[:203])
+    assert replayed.agent is not None and len(replayed.agent.action) == result.steps
+    assert replayed.agent.outcome[-1] == result.outcome and replayed.metadata["kind"] == "agent"
+    np.testing.assert_array_equal(replayed.agent.t, np.arange(4, 5 + result.steps))
+    t0 = int(replayed.agent.t[0])
+    np.testing.assert_array_equal(replayed.imagined[t0], recorded.frames[t0 + 1 : t0 + 4])
+    assert len(replayed.imagined) == result.steps
+    assert Image.open(gif).n_frames == result.steps
+
+
+def test_replay_errors(tmp_path, eval_logs):
+    log = log_path(eval_logs, EVAL_SEED_START)
+    with pytest.raises(LogError, match="missing.mcap: no such file"):
+        replay(tmp_path / "missing.mcap")
+    (tmp_path / "notes.mcap").write_text("hello")
+    with pytest.raises(LogError, match="not an MCAP file"):
+        replay(tmp_path / "notes.mcap")
+    with pytest.raises(LogError, match="holds 407 frames; agent speed 0.25 needs 814"):
+        replay(log, agent_speed=0.25)
+    with pytest.raises(ConfigError, match="rollout_steps=0 is invalid"):
+        replay(log, rollout_steps=0)
+    with pytest.raises(ValueError, match="planner must be one of"):
+        replay(log, planner="psychic")
+
+
+@pytest.mark.slow
+def test_replay_command_line(tmp_path, eval_logs):
+    log = log_path(eval_logs, EVAL_SEED_START + 1)
+    out = tmp_path / "r.mcap"
+    proc = subprocess.run([sys.executable, "-m", "flows.replay", str(log), "--planner", "zero", "--json",
+                           "--out", str(out)], cwd=ROOT, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert result["outcome"] in {"goal", "timeout", "death"} and result["planner"] == "zero"
+    assert {"steps", "decision_ms_median"} <= set(result) and out.is_file()
+    for args, text in [([str(tmp_path / "nope.mcap")], "nope.mcap: no such file"),
+                       ([str(log), "--rollout-steps", "0"], "rollout_steps=0 is invalid"),
+                       ([str(log), "--planner", "psychic"], "invalid choice: 'psychic'")]:  # fmt: skip
+        bad = subprocess.run([sys.executable, "-m", "flows.replay", *args], cwd=ROOT, capture_output=True, text=True)
+        assert bad.returncode == 2 and text in bad.stderr
+        assert "Traceback" not in bad.stderr and text in bad.stderr.strip().splitlines()[-1]
