@@ -149,6 +149,13 @@ def committed_checksums(store: str | os.PathLike) -> list[str]:
     return list(group["log_sha256"][:]) if "log_sha256" in group else []
 
 
+def fingerprint(store: str | os.PathLike) -> str:
+    """A key for the store's contents: its config, frame count and the checksums of its logs, in order."""
+    group = zarr.open_group(str(store), mode="r", use_consolidated=False)
+    parts = [group.attrs.get("config"), group.attrs.get("n_frames"), list(group["log_sha256"][:])]
+    return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()
+
+
 def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> BuildReport:
     """Append the logs described by `infos` (from `inspect_for_store`) to the Zarr group at `store`.
 

@@ -1,0 +1,101 @@
+"""Pixel likelihoods for the VQ-VAE decoder, over the world's few pixel values.
+
+* `DMoL`: the discretized mixture of logistics of PixelCNN++ (the paper's choice), on [−1, 1] with 256 bins;
+  its mid-point is the most probable component's mean, and both it and samples snap to the nearest world value.
+* `Categorical`: a softmax over the 7 values the world uses (free, 5 obstacle classes, goal); mid-point argmax.
+
+Both map decoder outputs (B, C, H, W) to a per-pixel negative log-likelihood, a mid-point frame and samples,
+as uint8 on the world's values.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+from dynplan.env.config import FREE, GOAL_VALUE, obstacle_classes
+
+#: The pixel values a world frame can hold, ascending: free, the obstacle classes, the goal.
+WORLD_VALUES = tuple(sorted({FREE, GOAL_VALUE, *(c.value for c in obstacle_classes(48))}))
+
+
+def to_unit(frames: torch.Tensor) -> torch.Tensor:
+    """uint8 frames → float in [−1, 1] (the VQ-VAE's input scale)."""
+    return frames.float() / 127.5 - 1.0
+
+
+def value_index(frames: torch.Tensor) -> torch.Tensor:
+    """uint8 frames on world values → class indices 0 … 6 (int64)."""
+    lut = torch.zeros(256, dtype=torch.long)
+    lut[list(WORLD_VALUES)] = torch.arange(len(WORLD_VALUES))
+    return lut[frames.long()]
+
+
+def snap(unit: torch.Tensor) -> torch.Tensor:
+    """Values in [−1, 1] → uint8 frames on the nearest world value."""
+    values = torch.tensor(WORLD_VALUES, dtype=torch.float32, device=unit.device)
+    nearest = ((unit.unsqueeze(-1) + 1.0) * 127.5 - values).abs().argmin(-1)
+    return values[nearest].to(torch.uint8)
+
+
+class DMoL:
+    """Discretized mixture of `n_mix` logistics for one channel (PixelCNN++, Salimans et al. 2017)."""
+
+    def __init__(self, n_mix: int = 10, bins: int = 256):
+        self.n_mix, self.bins = n_mix, bins
+
+    @property
+    def channels(self) -> int:
+        return 3 * self.n_mix
+
+    def _split(self, params: torch.Tensor):
+        logit_pi, mu, log_s = params.split(self.n_mix, dim=1)
+        return logit_pi, mu, log_s.clamp(min=-7.0)
+
+    def nll(self, params: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+        """(B, 3·n_mix, H, W), uint8 (B, H, W) → nats per pixel (B, H, W)."""
+        x = to_unit(frames).unsqueeze(1)
+        logit_pi, mu, log_s = self._split(params)
+        centered = x - mu
+        inv_s = torch.exp(-log_s)
+        half_bin = 1.0 / (self.bins - 1)
+        plus_in, min_in = inv_s * (centered + half_bin), inv_s * (centered - half_bin)
+        cdf_delta = torch.sigmoid(plus_in) - torch.sigmoid(min_in)
+        log_cdf_plus = plus_in - F.softplus(plus_in)  # x at the lowest bin
+        log_one_minus_cdf_min = -F.softplus(min_in)  # x at the highest bin
+        mid_in = inv_s * centered
+        log_pdf_mid = mid_in - log_s - 2.0 * F.softplus(mid_in) - torch.log(torch.tensor((self.bins - 1) / 2.0))
+        inner = torch.where(cdf_delta > 1e-5, torch.log(cdf_delta.clamp(min=1e-12)), log_pdf_mid)
+        log_probs = torch.where(x < -0.999, log_cdf_plus, torch.where(x > 0.999, log_one_minus_cdf_min, inner))
+        return -torch.logsumexp(log_probs + F.log_softmax(logit_pi, dim=1), dim=1)
+
+    def mid(self, params: torch.Tensor) -> torch.Tensor:
+        """The most probable component's mean, snapped: uint8 (B, H, W)."""
+        logit_pi, mu, _ = self._split(params)
+        best = logit_pi.argmax(dim=1, keepdim=True)
+        return snap(mu.gather(1, best).squeeze(1).clamp(-1.0, 1.0))
+
+    def sample(self, params: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """One sample per pixel from the mixture, snapped: uint8 (B, H, W)."""
+        logit_pi, mu, log_s = self._split(params)
+        u = torch.rand(logit_pi.shape, generator=generator).clamp(1e-5, 1 - 1e-5)
+        component = (logit_pi - torch.log(-torch.log(u))).argmax(dim=1, keepdim=True)
+        mu, log_s = mu.gather(1, component).squeeze(1), log_s.gather(1, component).squeeze(1)
+        v = torch.rand(mu.shape, generator=generator).clamp(1e-5, 1 - 1e-5)
+        return snap((mu + torch.exp(log_s) * (torch.log(v) - torch.log1p(-v))).clamp(-1.0, 1.0))
+
+
+class Categorical:
+    """A softmax over the world's 7 pixel values."""
+
+    channels = len(WORLD_VALUES)
+
+    def nll(self, logits: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+        return F.cross_entropy(logits, value_index(frames), reduction="none")
+
+    def mid(self, logits: torch.Tensor) -> torch.Tensor:
+        return torch.tensor(WORLD_VALUES, dtype=torch.uint8)[logits.argmax(dim=1)]
+
+    def sample(self, logits: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        u = torch.rand(logits.shape, generator=generator).clamp(1e-5, 1 - 1e-5)
+        return torch.tensor(WORLD_VALUES, dtype=torch.uint8)[(logits - torch.log(-torch.log(u))).argmax(dim=1)]

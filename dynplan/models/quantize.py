@@ -1,0 +1,93 @@
+"""Vector quantization of a latent grid, with one or several codebooks per position.
+
+The latent (B, n·D, h, w) is split into n groups of D channels; group i is replaced by its nearest entry of
+codebook i (K × D). Gradients pass straight through to the encoder; the commitment loss keeps the encoder near
+its codes. Codebooks learn either by the codebook loss (van den Oord et al. 2017) or by exponential moving
+averages (EMA, as in VQ-VAE-2), optionally restarting codes that fall out of use onto random encoder outputs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+@dataclass
+class Quantized:
+    """quantized: (B, n·D, h, w) straight-through latent; codes: (B, h, w, n) int64; loss: scalar;
+    perplexity: mean over codebooks of exp(entropy of code use in the batch); counts: (n, K) code use."""
+
+    quantized: torch.Tensor
+    codes: torch.Tensor
+    loss: torch.Tensor
+    perplexity: torch.Tensor
+    counts: torch.Tensor
+
+
+class VectorQuantizer(nn.Module):
+    def __init__(self, codebook_size: int, dim: int, n_codebooks: int = 1, commitment: float = 0.25,
+                 ema: bool = True, decay: float = 0.99, restart_dead: bool = True, eps: float = 1e-5):  # fmt: skip
+        super().__init__()
+        self.K, self.D, self.n = codebook_size, dim, n_codebooks
+        self.commitment, self.ema, self.decay, self.restart_dead, self.eps = commitment, ema, decay, restart_dead, eps
+        embed = torch.randn(n_codebooks, codebook_size, dim) / dim**0.5
+        if ema:
+            self.register_buffer("embed", embed)
+            self.register_buffer("cluster_size", torch.ones(n_codebooks, codebook_size))
+            self.register_buffer("embed_sum", embed.clone())
+        else:
+            self.embed = nn.Parameter(embed)
+
+    def lookup(self, codes: torch.Tensor) -> torch.Tensor:
+        """codes (B, h, w, n) → latent (B, n·D, h, w)."""
+        B, h, w, n = codes.shape
+        parts = [F.embedding(codes[..., i], self.embed[i]) for i in range(n)]  # each (B, h, w, D)
+        return torch.cat(parts, dim=-1).permute(0, 3, 1, 2).contiguous()
+
+    def nearest(self, z: torch.Tensor) -> torch.Tensor:
+        """Latent (B, n·D, h, w) → codes (B, h, w, n)."""
+        B, _, h, w = z.shape
+        flat = z.permute(0, 2, 3, 1).reshape(-1, self.n, self.D)  # (N, n, D)
+        codes = []
+        for i in range(self.n):
+            e = self.embed[i]
+            distance = flat[:, i].pow(2).sum(1, keepdim=True) - 2 * flat[:, i] @ e.t() + e.pow(2).sum(1)
+            codes.append(distance.argmin(1))
+        return torch.stack(codes, dim=-1).view(B, h, w, self.n)
+
+    def forward(self, z: torch.Tensor) -> Quantized:
+        codes = self.nearest(z)
+        q = self.lookup(codes)
+        one_hot = F.one_hot(codes.reshape(-1, self.n), self.K).float()  # (N, n, K)
+        counts = one_hot.sum(0)  # (n, K)
+        if self.training and self.ema:
+            self._ema_update(z, one_hot, counts)
+            q = self.lookup(codes)
+            loss = self.commitment * F.mse_loss(z, q.detach())
+        else:
+            loss = F.mse_loss(q, z.detach()) + self.commitment * F.mse_loss(z, q.detach())
+        probs = counts / counts.sum(1, keepdim=True)
+        perplexity = torch.exp(-(probs * torch.log(probs + 1e-10)).sum(1)).mean()
+        return Quantized(z + (q - z).detach(), codes, loss, perplexity, counts)
+
+    @torch.no_grad()
+    def _ema_update(self, z: torch.Tensor, one_hot: torch.Tensor, counts: torch.Tensor) -> None:
+        flat = z.permute(0, 2, 3, 1).reshape(-1, self.n, self.D)
+        self.cluster_size.mul_(self.decay).add_(counts, alpha=1 - self.decay)
+        self.embed_sum.mul_(self.decay).add_(torch.einsum("nik,nid->ikd", one_hot, flat), alpha=1 - self.decay)
+        total = self.cluster_size.sum(1, keepdim=True)
+        size = (self.cluster_size + self.eps) / (total + self.K * self.eps) * total
+        self.embed.copy_(self.embed_sum / size.unsqueeze(-1))
+        if self.restart_dead:
+            # Codes whose running use fell below a hundredth of a vector per batch move onto random encoder outputs.
+            dead = self.cluster_size < 0.01
+            for i in range(self.n):
+                idx = dead[i].nonzero().squeeze(1)
+                if len(idx):
+                    pick = torch.randint(0, flat.shape[0], (len(idx),), device=z.device)
+                    self.embed[i, idx] = flat[pick, i]
+                    self.embed_sum[i, idx] = flat[pick, i]
+                    self.cluster_size[i, idx] = 1.0

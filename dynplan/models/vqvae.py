@@ -1,0 +1,178 @@
+"""The VQ-VAE tokenizer (SPEC §2, stage 1): a 48 × 48 frame ↔ an h × w grid of discrete codes.
+
+Encoder: 4 × 4 convolutions (stride 2 halves the grid, stride 1 keeps it), optional residual blocks, a 1 × 1
+projection to n_codebooks × latent_dim channels; vector quantization; a mirrored decoder of transposed
+convolutions ending in a pixel likelihood (`likelihood.py`). The paper's configuration is `PRESETS["paper"]`:
+channels 42, 32, 16, 16, strides 2, 2, 2, 1 (6 × 6 codes), K = 512, DMoL with 10 components, codebook loss.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from pydantic import Field, model_validator
+from torch import nn
+
+from dynplan.config import Config
+from dynplan.models.likelihood import Categorical, DMoL, to_unit
+from dynplan.models.quantize import VectorQuantizer
+
+
+class VQVAEConfig(Config):
+    """Architecture and optimisation of a VQ-VAE; `PRESETS` holds the named ones."""
+
+    name: str = Field("custom", description="preset name, recorded in checkpoints")
+    height: int = Field(48, ge=8, le=512, description="frame rows")
+    width: int = Field(48, ge=8, le=512, description="frame columns")
+    channels: tuple[int, ...] = Field((42, 32, 16, 16), description="encoder conv widths, input side first")
+    strides: tuple[int, ...] = Field((2, 2, 2, 1), description="encoder conv strides (1 or 2 each)")
+    residual_blocks: int = Field(0, ge=0, le=16, description="residual blocks at the code resolution")
+    latent_dim: int = Field(16, ge=1, le=1024, description="channels per code")
+    codebook_size: int = Field(512, ge=2, le=65536, description="K, entries per codebook")
+    n_codebooks: int = Field(1, ge=1, le=16, description="codes per grid position")
+    likelihood: Literal["dmol", "categorical"] = Field("dmol", description="decoder pixel likelihood")
+    n_mixtures: int = Field(10, ge=1, le=64, description="DMoL components")
+    ema: bool = Field(False, description="EMA codebook updates instead of the codebook loss")
+    restart_dead: bool = Field(False, description="move unused codes onto encoder outputs (EMA only)")
+    commitment: float = Field(0.25, ge=0.0, le=10.0, description="commitment loss weight β")
+    obstacle_weight: float = Field(1.0, gt=0.0, le=100.0, description="loss weight of non-free pixels")
+    learning_rate: float = Field(1e-3, gt=0.0, le=1.0, description="Adam learning rate")
+    batch_size: int = Field(32, ge=1, le=4096, description="frames per batch")
+
+    @model_validator(mode="after")
+    def _check_shape(self) -> VQVAEConfig:
+        if len(self.channels) != len(self.strides) or not self.channels:
+            raise ValueError("channels and strides must be non-empty and of the same length")
+        if any(s not in (1, 2) for s in self.strides):
+            raise ValueError(f"strides must each be 1 or 2, got {self.strides}")
+        scale = 2 ** sum(s == 2 for s in self.strides)
+        if self.height % scale or self.width % scale:
+            raise ValueError(f"frame {self.height}×{self.width} is not divisible by the encoder's stride {scale}")
+        if self.restart_dead and not self.ema:
+            raise ValueError("restart_dead needs ema=True")
+        return self
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """(h, w) of the code grid."""
+        scale = 2 ** sum(s == 2 for s in self.strides)
+        return self.height // scale, self.width // scale
+
+
+PRESETS: dict[str, VQVAEConfig] = {
+    # The paper's model (SPEC §2), as published: 6 × 6 codes from a 512-entry codebook, DMoL likelihood.
+    "paper": VQVAEConfig(name="paper"),
+    # Ours: a 12 × 12 grid of codes from 1024 entries, a categorical likelihood over the world's 7 values, EMA
+    # codebook with restarts, residual blocks — chosen by measurement (see README, "World model").
+    "default": VQVAEConfig(
+        name="default",
+        channels=(64, 128, 128),
+        strides=(2, 2, 1),
+        residual_blocks=2,
+        latent_dim=32,
+        codebook_size=1024,
+        likelihood="categorical",
+        ema=True,
+        restart_dead=True,
+    ),  # fmt: skip
+}
+
+
+def _conv(c_in: int, c_out: int, stride: int) -> nn.Module:
+    if stride == 2:
+        return nn.Conv2d(c_in, c_out, 4, stride=2, padding=1)
+    # A 4 × 4 kernel keeps the size with padding 1 before and 2 after.
+    return nn.Sequential(nn.ZeroPad2d((1, 2, 1, 2)), nn.Conv2d(c_in, c_out, 4))
+
+
+def _deconv(c_in: int, c_out: int, stride: int) -> nn.Module:
+    if stride == 2:
+        return nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1)
+    return _conv(c_in, c_out, 1)  # a stride-1 "transpose" is a convolution
+
+
+class Residual(nn.Module):
+    def __init__(self, channels: int):
+        super().__init__()
+        self.block = nn.Sequential(nn.ReLU(), nn.Conv2d(channels, channels, 3, padding=1), nn.ReLU(),
+                                   nn.Conv2d(channels, channels, 1))  # fmt: skip
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.block(x)
+
+
+@dataclass
+class VQVAEOutput:
+    """params: decoder output (B, C, H, W); codes (B, h, w, n); losses by name; perplexity; code use (n, K)."""
+
+    params: torch.Tensor
+    codes: torch.Tensor
+    losses: dict[str, torch.Tensor]
+    perplexity: torch.Tensor
+    counts: torch.Tensor
+
+
+class VQVAE(nn.Module):
+    def __init__(self, config: VQVAEConfig):
+        super().__init__()
+        self.config = config
+        c = config
+        latent = c.latent_dim * c.n_codebooks
+        widths = (1, *c.channels)
+        layers: list[nn.Module] = []
+        for i, stride in enumerate(c.strides):
+            layers += [_conv(widths[i], widths[i + 1], stride)] + ([nn.ReLU()] if i < len(c.strides) - 1 else [])
+        layers += [Residual(widths[-1]) for _ in range(c.residual_blocks)]
+        if c.residual_blocks:
+            layers.append(nn.ReLU())
+        if latent != widths[-1] or c.residual_blocks:
+            layers.append(nn.Conv2d(widths[-1], latent, 1))
+        self.encoder = nn.Sequential(*layers)
+        self.quantizer = VectorQuantizer(c.codebook_size, c.latent_dim, c.n_codebooks, c.commitment, c.ema,
+                                         restart_dead=c.restart_dead)  # fmt: skip
+        self.pixel = DMoL(c.n_mixtures) if c.likelihood == "dmol" else Categorical()
+        layers = []
+        if latent != widths[-1] or c.residual_blocks:
+            layers.append(nn.Conv2d(latent, widths[-1], 1))
+        layers += [Residual(widths[-1]) for _ in range(c.residual_blocks)]
+        outs = (*reversed(widths[1:-1]), self.pixel.channels)
+        ins = tuple(reversed(widths[1:]))
+        for i, stride in enumerate(reversed(c.strides)):
+            layers += [nn.ReLU(), _deconv(ins[i], outs[i], stride)]
+        self.decoder = nn.Sequential(*layers)
+
+    def forward(self, frames: torch.Tensor) -> VQVAEOutput:
+        """uint8 frames (B, H, W) → reconstruction parameters, codes and the training losses."""
+        z = self.encoder(to_unit(frames).unsqueeze(1))
+        q = self.quantizer(z)
+        params = self.decoder(q.quantized)
+        nll = self.pixel.nll(params, frames)
+        if self.config.obstacle_weight != 1.0:
+            nll = nll * torch.where(frames != 0, self.config.obstacle_weight, 1.0)
+        losses = {"reconstruction": nll.mean(), "vq": q.loss}
+        return VQVAEOutput(params, q.codes, losses, q.perplexity, q.counts)
+
+    @torch.inference_mode()
+    def encode(self, frames: torch.Tensor) -> torch.Tensor:
+        """uint8 (N, H, W) → codes (N, h, w) (or (N, h, w, n) with several codebooks)."""
+        codes = self.quantizer.nearest(self.encoder(to_unit(frames).unsqueeze(1)))
+        return codes.squeeze(-1) if self.config.n_codebooks == 1 else codes
+
+    @torch.inference_mode()
+    def decode_params(self, codes: torch.Tensor) -> torch.Tensor:
+        if codes.dim() == 3:
+            codes = codes.unsqueeze(-1)
+        return self.decoder(self.quantizer.lookup(codes.long()))
+
+    @torch.inference_mode()
+    def decode(self, codes: torch.Tensor) -> torch.Tensor:
+        """codes → uint8 mid-point frames (N, H, W) on the world's pixel values."""
+        return self.pixel.mid(self.decode_params(codes))
+
+    @torch.inference_mode()
+    def decode_samples(self, codes: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
+        """codes (N, …) → n samples per frame from the pixel likelihood: uint8 (n, N, H, W)."""
+        params = self.decode_params(codes)
+        return torch.stack([self.pixel.sample(params, generator) for _ in range(n)])

@@ -1,0 +1,88 @@
+"""`python -m flows.train vqvae --store STORE.zarr [--model default|paper]`: train a world-model stage as a
+cached, resumable Prefect task.
+
+The run's folder is named by its cache key — (dataset fingerprint, config, budget, code version) — so a rerun
+with the same inputs returns the finished checkpoint at once, and an interrupted run continues from its last
+epoch. `--max-minutes` stops early (resumably): rerun the same command to go on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.context import TaskRunContext
+
+from dynplan.config import ConfigError
+from dynplan.data.store import fingerprint
+from dynplan.models import likelihood, quantize, vqvae
+from dynplan.models.vqvae import PRESETS, VQVAEConfig
+from dynplan.training import checkpoint as checkpoint_module
+from dynplan.training import vqvae as vqvae_training
+from dynplan.training.checkpoint import code_version, digest
+from dynplan.training.vqvae import TrainBudget, train_vqvae
+
+VQVAE_CODE = (vqvae, quantize, likelihood, vqvae_training, checkpoint_module)
+
+
+def vqvae_run_dir(store: str, out: str, config: dict, budget: dict) -> Path:
+    """Where a training run lives: named by what determines its result."""
+    determining = {k: v for k, v in budget.items() if k not in ("max_minutes", "threads")}
+    key = digest(fingerprint(store), config, determining, code_version(*VQVAE_CODE))
+    return Path(out) / f"vqvae-{config['name']}-{key[:12]}"
+
+
+def _cache_key(context: TaskRunContext, parameters: dict) -> str | None:
+    """Cache only finished runs: the key exists once the run's final checkpoint does."""
+    run_dir = vqvae_run_dir(parameters["store"], parameters["out"], parameters["config"], parameters["budget"])
+    return run_dir.name if (run_dir / "vqvae.pt").exists() else None
+
+
+@task(name="train-vqvae", cache_key_fn=_cache_key, persist_result=True)
+def train_vqvae_task(store: str, out: str, config: dict, budget: dict) -> str:
+    run_dir = vqvae_run_dir(store, out, config, budget)
+    path = train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget),
+                       on_epoch=lambda row: print(json.dumps({k: row[k] for k in (
+                           "epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used")})))  # fmt: skip
+    return str(path)
+
+
+@flow(name="train-vqvae", log_prints=True)
+def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
+                     budget: dict | None = None, overrides: dict | None = None) -> str:  # fmt: skip
+    """Train the VQ-VAE preset `model` (with optional config `overrides`) on `store`."""
+    config = PRESETS[model].model_copy(update=overrides or {})
+    config = VQVAEConfig(**config.model_dump())  # validate the overrides
+    path = train_vqvae_task(store, out, config.model_dump(), TrainBudget(**(budget or {})).model_dump())
+    print(f"checkpoint: {path}")
+    return path
+
+
+def main(argv: list[str] | None = None) -> str:
+    parser = argparse.ArgumentParser(prog="python -m flows.train", description=__doc__)
+    parser.add_argument("stage", choices=["vqvae"], help="which stage to train")
+    parser.add_argument("--store", default="datasets/frames.zarr", help="frames store from flows.build_datasets")
+    parser.add_argument("--model", default="default", choices=sorted(PRESETS), help="configuration preset")
+    parser.add_argument("--out", default="datasets/checkpoints", help="folder for training runs")
+    parser.add_argument("--epochs", type=int, default=TrainBudget().epochs)
+    parser.add_argument("--steps-per-epoch", type=int, default=TrainBudget().steps_per_epoch)
+    parser.add_argument("--max-minutes", type=float, help="stop after this long (resumable)")
+    parser.add_argument("--threads", type=int, help="torch threads (default: all cores)")
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
+    args = parser.parse_args(argv)
+    try:
+        overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
+        budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
+                             threads=args.threads).model_dump()  # fmt: skip
+        VQVAEConfig(**{**PRESETS[args.model].model_dump(), **overrides})
+        if not Path(args.store).exists():
+            raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
+    except (ConfigError, ValueError, FileNotFoundError) as error:
+        parser.error(str(error))
+    return train_vqvae_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides)
+
+
+if __name__ == "__main__":
+    main()
