@@ -17,20 +17,15 @@ from prefect.context import TaskRunContext
 
 from dynplan.config import ConfigError
 from dynplan.data.store import fingerprint
-from dynplan.models import likelihood, quantize, vqvae
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
-from dynplan.training import checkpoint as checkpoint_module
-from dynplan.training import vqvae as vqvae_training
-from dynplan.training.checkpoint import code_version, digest
-from dynplan.training.vqvae import TrainBudget, train_vqvae
-
-VQVAE_CODE = (vqvae, quantize, likelihood, vqvae_training, checkpoint_module)
+from dynplan.training.checkpoint import digest
+from dynplan.training.vqvae import CODE_VERSION, TrainBudget, train_vqvae
 
 
 def vqvae_run_dir(store: str, out: str, config: dict, budget: dict) -> Path:
     """Where a training run lives: named by what determines its result."""
     determining = {k: v for k, v in budget.items() if k not in ("max_minutes", "threads")}
-    key = digest(fingerprint(store), config, determining, code_version(*VQVAE_CODE))
+    key = digest(fingerprint(store), config, determining, CODE_VERSION)
     return Path(out) / f"vqvae-{config['name']}-{key[:12]}"
 
 
@@ -43,9 +38,9 @@ def _cache_key(context: TaskRunContext, parameters: dict) -> str | None:
 @task(name="train-vqvae", cache_key_fn=_cache_key, persist_result=True)
 def train_vqvae_task(store: str, out: str, config: dict, budget: dict) -> str:
     run_dir = vqvae_run_dir(store, out, config, budget)
+    shown = ("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used")
     path = train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget),
-                       on_epoch=lambda row: print(json.dumps({k: row[k] for k in (
-                           "epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used")})))  # fmt: skip
+                       on_epoch=lambda row: print(json.dumps({k: row[k] for k in shown})))  # fmt: skip
     return str(path)
 
 

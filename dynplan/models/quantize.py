@@ -36,15 +36,15 @@ class VectorQuantizer(nn.Module):
         embed = torch.randn(n_codebooks, codebook_size, dim) / dim**0.5
         if ema:
             self.register_buffer("embed", embed)
-            self.register_buffer("cluster_size", torch.ones(n_codebooks, codebook_size))
+            # Zero use at the start: codes the first batches do not pick are restarted onto encoder outputs.
+            self.register_buffer("cluster_size", torch.zeros(n_codebooks, codebook_size))
             self.register_buffer("embed_sum", embed.clone())
         else:
             self.embed = nn.Parameter(embed)
 
     def lookup(self, codes: torch.Tensor) -> torch.Tensor:
         """codes (B, h, w, n) → latent (B, n·D, h, w)."""
-        B, h, w, n = codes.shape
-        parts = [F.embedding(codes[..., i], self.embed[i]) for i in range(n)]  # each (B, h, w, D)
+        parts = [F.embedding(codes[..., i], self.embed[i]) for i in range(codes.shape[-1])]  # each (B, h, w, D)
         return torch.cat(parts, dim=-1).permute(0, 3, 1, 2).contiguous()
 
     def nearest(self, z: torch.Tensor) -> torch.Tensor:
@@ -82,7 +82,8 @@ class VectorQuantizer(nn.Module):
         size = (self.cluster_size + self.eps) / (total + self.K * self.eps) * total
         self.embed.copy_(self.embed_sum / size.unsqueeze(-1))
         if self.restart_dead:
-            # Codes whose running use fell below a hundredth of a vector per batch move onto random encoder outputs.
+            # Codes whose running use fell below a hundredth of a vector per batch (never used, or unused for
+            # ~500 batches) move onto random encoder outputs of this batch.
             dead = self.cluster_size < 0.01
             for i in range(self.n):
                 idx = dead[i].nonzero().squeeze(1)

@@ -65,18 +65,19 @@ PRESETS: dict[str, VQVAEConfig] = {
     # The paper's model (SPEC §2), as published: 6 × 6 codes from a 512-entry codebook, DMoL likelihood.
     "paper": VQVAEConfig(name="paper"),
     # Ours: a 12 × 12 grid of codes from 1024 entries, a categorical likelihood over the world's 7 values, EMA
-    # codebook with restarts, residual blocks — chosen by measurement (see README, "World model").
+    # codebook with restarts, residual blocks (a 4 × 4 patch per code: its contents fit a 1024-entry codebook
+    # where the paper's 8 × 8 patches do not; see README, "World model").
     "default": VQVAEConfig(
         name="default",
-        channels=(64, 128, 128),
-        strides=(2, 2, 1),
+        channels=(32, 64),
+        strides=(2, 2),
         residual_blocks=2,
         latent_dim=32,
         codebook_size=1024,
         likelihood="categorical",
         ema=True,
         restart_dead=True,
-    ),  # fmt: skip
+    ),
 }
 
 

@@ -49,11 +49,3 @@ def load(path: str | os.PathLike, kind: str, config: dict | None = None) -> dict
 def digest(*parts: Any) -> str:
     """A stable hex key of JSON-serialisable parts (configs, fingerprints, code versions)."""
     return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
-
-
-def code_version(*modules: Any) -> str:
-    """Hash of the source files of `modules`: a cache key part that changes when the training code does."""
-    digest_ = hashlib.sha256()
-    for module in modules:
-        digest_.update(Path(module.__file__).read_bytes())
-    return digest_.hexdigest()[:16]

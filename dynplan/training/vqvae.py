@@ -28,6 +28,9 @@ from dynplan.models.vqvae import VQVAE, VQVAEConfig
 from dynplan.training import checkpoint
 
 KIND = "vqvae"
+#: Part of a training run's cache key. Bump it whenever a change to the model, likelihood, quantizer or this
+#: loop would change what training produces; edits that do not (docs, names) keep runs resumable.
+CODE_VERSION = "vqvae-1"
 
 
 class TrainBudget(Config):

@@ -1,0 +1,152 @@
+"""The VQ-VAE: shapes and round trips, likelihoods, quantizer, and small real trainings (resume, cache, errors)."""
+
+import numpy as np
+import pytest
+import torch
+
+from dynplan.config import ConfigError
+from dynplan.data.store import build_frame_store_from_logs, list_logs
+from dynplan.env import RoadConfig, generate_world
+from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, to_unit, value_index
+from dynplan.models.quantize import VectorQuantizer
+from dynplan.models.vqvae import PRESETS, VQVAE, VQVAEConfig
+from dynplan.training.checkpoint import CheckpointError
+from dynplan.training.vqvae import TrainBudget, load_vqvae_checkpoint, train_vqvae
+
+TINY = VQVAEConfig(name="tiny", channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16, n_mixtures=3,
+                   batch_size=8)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return torch.from_numpy(generate_world(RoadConfig(), 4).frames[:16].copy())
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory, recorded_logs):
+    path = tmp_path_factory.mktemp("vq") / "frames.zarr"
+    build_frame_store_from_logs(path, list_logs(recorded_logs))
+    return path
+
+
+@pytest.mark.parametrize("name", ["paper", "default"])
+def test_presets_shapes_and_round_trip_types(name, frames):
+    model = VQVAE(PRESETS[name]).eval()
+    codes = model.encode(frames)
+    assert codes.shape == (16, *PRESETS[name].grid) and codes.dtype == torch.int64
+    assert int(codes.max()) < PRESETS[name].codebook_size
+    decoded = model.decode(codes)
+    assert decoded.shape == (16, 48, 48) and decoded.dtype == torch.uint8
+    assert set(decoded.unique().tolist()) <= set(WORLD_VALUES)
+    samples = model.decode_samples(codes[:2], 3, torch.Generator().manual_seed(0))
+    assert samples.shape == (3, 2, 48, 48)
+    assert PRESETS["paper"].grid == (6, 6) and PRESETS["paper"].codebook_size == 512
+
+
+def test_paper_encoder_is_four_4x4_convolutions_42_32_16_16():
+    convs = [m for m in VQVAE(PRESETS["paper"]).encoder.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert [(c.out_channels, c.kernel_size, c.stride) for c in convs] == [
+        (42, (4, 4), (2, 2)), (32, (4, 4), (2, 2)), (16, (4, 4), (2, 2)), (16, (4, 4), (1, 1))]  # fmt: skip
+
+
+def test_several_codebooks_per_position(frames):
+    config = TINY.model_copy(update={"n_codebooks": 3})
+    model = VQVAE(VQVAEConfig(**config.model_dump())).eval()
+    codes = model.encode(frames)
+    assert codes.shape == (16, 6, 6, 3)
+    assert model.decode(codes).shape == (16, 48, 48)
+
+
+def test_likelihoods_score_the_truth_best():
+    frames = torch.tensor([[[0, 45, 85], [100, 130, 244]]], dtype=torch.uint8)
+    assert torch.equal(snap(to_unit(frames)), frames)
+    assert value_index(frames).tolist() == [[[0, 1, 2], [3, 4, 6]]]
+    dmol = DMoL(n_mix=2)
+    params = torch.zeros(1, 6, 2, 3)
+    params[:, 2:4] = to_unit(frames).unsqueeze(1)  # both components centred on the truth
+    params[:, 4:6] = -5.0  # sharp
+    wrong = params.clone()
+    wrong[:, 2:4] = -wrong[:, 2:4]
+    assert dmol.nll(params, frames).mean() < dmol.nll(wrong, frames).mean()
+    assert torch.equal(dmol.mid(params), frames)
+    logits = torch.nn.functional.one_hot(value_index(frames), 7).permute(0, 3, 1, 2).float() * 10
+    assert torch.equal(Categorical().mid(logits), frames)
+
+
+def test_ema_quantizer_learns_and_restarts_dead_codes():
+    torch.manual_seed(0)
+    vq = VectorQuantizer(8, 2, ema=True, restart_dead=True).train()
+    data = torch.randn(64, 2, 4, 4) * 0.1 + 3.0  # far from every initial code
+    before = vq.embed.clone()
+    for _ in range(50):
+        out = vq(data)
+    assert not torch.equal(before, vq.embed)
+    assert out.perplexity > 1.5  # restarts spread codes over the data instead of one code taking all
+    assert float(((vq.lookup(out.codes) - data) ** 2).mean()) < 0.05
+
+
+def test_config_errors():
+    with pytest.raises(ConfigError, match="strides must each be 1 or 2"):
+        VQVAEConfig(strides=(2, 3, 2, 1))
+    with pytest.raises(ConfigError, match="codebook_size=1 is invalid"):
+        VQVAEConfig(codebook_size=1)
+    with pytest.raises(ConfigError, match="restart_dead needs ema=True"):
+        VQVAEConfig(restart_dead=True)
+    with pytest.raises(ConfigError, match="not divisible"):
+        VQVAEConfig(height=50)
+
+
+def test_small_real_training_lowers_the_loss(tmp_path, store):
+    budget = TrainBudget(epochs=4, steps_per_epoch=25, val_frames=200, threads=1)
+    config = TINY.model_copy(update={"likelihood": "categorical", "ema": True, "restart_dead": True})
+    path = train_vqvae(store, tmp_path, VQVAEConfig(**config.model_dump()), budget)
+    assert path.name == "vqvae.pt"
+    history = torch.load(path, weights_only=False)["history"]
+    assert len(history) == 4
+    assert history[-1]["reconstruction"] < 0.7 * history[0]["reconstruction"]
+    assert (tmp_path / "metrics.csv").read_text().count("\n") == 5
+    assert (tmp_path / "reconstructions.png").stat().st_size > 1000
+    model = load_vqvae_checkpoint(path)
+    assert model.encode(torch.zeros(2, 48, 48, dtype=torch.uint8)).shape == (2, 6, 6)
+
+
+def test_training_resumes_after_an_interruption(tmp_path, store):
+    budget = TrainBudget(epochs=3, steps_per_epoch=5, val_frames=50, threads=1)
+
+    def interrupt(row):
+        if row["epoch"] == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train_vqvae(store, tmp_path, TINY, budget, on_epoch=interrupt)
+    assert not (tmp_path / "vqvae.pt").exists()
+    epochs_seen = []
+    train_vqvae(store, tmp_path, TINY, budget, on_epoch=lambda row: epochs_seen.append(row["epoch"]))
+    assert epochs_seen == [3]  # epochs 1 and 2 were not redone
+    history = torch.load(tmp_path / "vqvae.pt", weights_only=False)["history"]
+    assert [row["epoch"] for row in history] == [1, 2, 3]
+
+
+def test_a_checkpoint_of_another_config_is_refused(tmp_path, store):
+    budget = TrainBudget(epochs=1, steps_per_epoch=2, val_frames=20, threads=1)
+    path = train_vqvae(store, tmp_path, TINY, budget)
+    other = VQVAEConfig(**TINY.model_copy(update={"codebook_size": 32}).model_dump())
+    with pytest.raises(CheckpointError, match=r"different configuration \(differs in codebook_size\)"):
+        train_vqvae(store, tmp_path, other, budget)
+    with pytest.raises(CheckpointError, match="differs in codebook_size"):
+        load_vqvae_checkpoint(path, other)
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(CheckpointError, match="junk.pt: not a readable checkpoint"):
+        load_vqvae_checkpoint(tmp_path / "junk.pt")
+
+
+def test_train_flow_is_cached_across_runs(tmp_path, store, prefect_api):
+    from flows.train import train_vqvae_flow
+
+    budget = {"epochs": 1, "steps_per_epoch": 3, "val_frames": 20, "threads": 1}
+    overrides = {k: v for k, v in TINY.model_dump().items() if k != "name"}
+    first = train_vqvae_flow(store=str(store), model="paper", out=str(tmp_path), budget=budget, overrides=overrides)
+    stamp = np.array([p.stat().st_mtime_ns for p in sorted(tmp_path.rglob("*")) if p.is_file()])
+    second = train_vqvae_flow(store=str(store), model="paper", out=str(tmp_path), budget=budget, overrides=overrides)
+    assert first == second
+    assert (np.array([p.stat().st_mtime_ns for p in sorted(tmp_path.rglob("*")) if p.is_file()]) == stamp).all()
