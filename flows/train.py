@@ -1,9 +1,10 @@
 """`python -m flows.train vqvae --store STORE.zarr [--model default|paper]`: train a world-model stage as a
 cached, resumable Prefect task.
 
-The run's folder is named by its cache key — (dataset fingerprint, config, budget, code version) — so a rerun
-with the same inputs returns the finished checkpoint at once, and an interrupted run continues from its last
-epoch. `--max-minutes` stops early (resumably): rerun the same command to go on.
+The run's folder is named by what determines its result — (dataset fingerprint, config, batches per epoch,
+seed, code version) — so a rerun with the same inputs returns the finished checkpoint at once (a Prefect cache
+hit), an interrupted run continues from its last epoch, and a larger `--epochs` extends a finished run.
+`--max-minutes` stops early (resumably): rerun the same command to go on.
 """
 
 from __future__ import annotations
@@ -18,21 +19,26 @@ from prefect.context import TaskRunContext
 from dynplan.config import ConfigError
 from dynplan.data.store import fingerprint
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
+from dynplan.training import checkpoint
 from dynplan.training.checkpoint import digest
 from dynplan.training.vqvae import CODE_VERSION, TrainBudget, train_vqvae
 
 
 def vqvae_run_dir(store: str, out: str, config: dict, budget: dict) -> Path:
     """Where a training run lives: named by what determines its result."""
-    determining = {k: v for k, v in budget.items() if k not in ("max_minutes", "threads")}
+    determining = {k: v for k, v in budget.items() if k not in ("epochs", "max_minutes", "threads")}
     key = digest(fingerprint(store), config, determining, CODE_VERSION)
     return Path(out) / f"vqvae-{config['name']}-{key[:12]}"
 
 
 def _cache_key(context: TaskRunContext, parameters: dict) -> str | None:
-    """Cache only finished runs: the key exists once the run's final checkpoint does."""
-    run_dir = vqvae_run_dir(parameters["store"], parameters["out"], parameters["config"], parameters["budget"])
-    return run_dir.name if (run_dir / "vqvae.pt").exists() else None
+    """Cache only finished runs: a key exists once the run's final checkpoint has the epochs asked for."""
+    budget = parameters["budget"]
+    run_dir = vqvae_run_dir(parameters["store"], parameters["out"], parameters["config"], budget)
+    final = run_dir / "vqvae.pt"
+    if not final.exists() or checkpoint.load(final, "vqvae")["epoch"] < budget["epochs"]:
+        return None
+    return f"{run_dir.name}-epochs{budget['epochs']}"
 
 
 @task(name="train-vqvae", cache_key_fn=_cache_key, persist_result=True)

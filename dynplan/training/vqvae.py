@@ -36,7 +36,7 @@ CODE_VERSION = "vqvae-1"
 class TrainBudget(Config):
     """How long to train: epochs of `steps_per_epoch` batches, optionally capped in wall-clock minutes."""
 
-    epochs: int = Field(20, ge=1, le=100_000, description="epochs to train")
+    epochs: int = Field(20, ge=1, le=100_000, description="epochs to train (in total, counting resumed ones)")
     steps_per_epoch: int = Field(500, ge=1, le=1_000_000, description="batches per epoch")
     val_frames: int = Field(2000, ge=1, le=1_000_000, description="validation frames scored after each epoch")
     max_minutes: float | None = Field(None, gt=0, description="stop (resumably) after this much wall time")
@@ -103,16 +103,17 @@ def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 
 
 def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQVAEConfig, budget: TrainBudget,
                 on_epoch: Callable[[dict], None] | None = None) -> Path:  # fmt: skip
-    """Train (or resume training of) a VQ-VAE in `out_dir`; returns the final checkpoint `out_dir/vqvae.pt`.
+    """Train (or resume training of) a VQ-VAE in `out_dir` up to `budget.epochs`; returns the final checkpoint
+    `out_dir/vqvae.pt`, or the latest one if `budget.max_minutes` stopped it first.
 
-    `out_dir/checkpoint.pt` holds the latest epoch (model, optimiser, RNG); rerunning continues from it, and a
-    checkpoint made with another config is an error rather than silently reused.
+    `out_dir/checkpoint.pt` holds the latest epoch (model, optimiser); rerunning continues from it — also to
+    extend a finished run with a larger `epochs` — and a checkpoint made with another config is an error
+    rather than silently reused.
     """
     store, out_dir = str(store), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     final = out_dir / "vqvae.pt"
-    if final.exists():
-        checkpoint.load(final, KIND, config.model_dump())
+    if final.exists() and checkpoint.load(final, KIND, config.model_dump())["epoch"] >= budget.epochs:
         return final
     if budget.threads:
         torch.set_num_threads(budget.threads)
