@@ -1,5 +1,5 @@
 """`python -m flows.train vqvae --store STORE.zarr [--model default|paper]`: train a world-model stage as a
-cached, resumable Prefect task.
+cached, resumable Prefect task, then encode the store with it (the `codes_<model>` array).
 
 The run's folder is named by what determines its result — (dataset fingerprint, config, batches per epoch,
 seed, code version) — so a rerun with the same inputs returns the finished checkpoint at once (a Prefect cache
@@ -14,9 +14,11 @@ import json
 from pathlib import Path
 
 from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
 from prefect.context import TaskRunContext
 
 from dynplan.config import ConfigError
+from dynplan.data.codes import build_codes
 from dynplan.data.store import fingerprint
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
 from dynplan.training import checkpoint
@@ -50,6 +52,11 @@ def train_vqvae_task(store: str, out: str, config: dict, budget: dict) -> str:
     return str(path)
 
 
+@task(name="build-codes", cache_policy=NO_CACHE)
+def build_codes_task(store: str, checkpoint: str, name: str) -> str:
+    return build_codes(store, checkpoint, name)
+
+
 @flow(name="train-vqvae", log_prints=True)
 def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
                      budget: dict | None = None, overrides: dict | None = None) -> str:  # fmt: skip
@@ -58,6 +65,8 @@ def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default"
     config = VQVAEConfig(**config.model_dump())  # validate the overrides
     path = train_vqvae_task(store, out, config.model_dump(), TrainBudget(**(budget or {})).model_dump())
     print(f"checkpoint: {path}")
+    if Path(path).name == "vqvae.pt":  # finished (not stopped early by max_minutes): encode the store
+        print(f"codes: {build_codes_task(store, path, model)} in {store}")
     return path
 
 

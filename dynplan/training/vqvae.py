@@ -130,7 +130,7 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
     write_bytes_atomic(out_dir / "config.json", json.dumps(config.model_dump(), indent=1).encode())
 
     train = FrameDataset(store, "train" if len(FrameDataset(store, "train").episodes) else "all")
-    frames = np.stack([train.episode(i) for i in range(len(train.episodes))])  # (E, T, H, W), in memory
+    frames = np.stack([train.array[int(e)] for e in train.episodes])  # (E, T, H, W) in memory, read once
     E, T = frames.shape[:2]
     val = _validation_frames(store, budget.val_frames)
     started = time.perf_counter()

@@ -1,0 +1,69 @@
+"""The Z-code store: every frame of the frames store encoded by a trained VQ-VAE, as a Zarr array beside it.
+
+`codes_<name>` has shape (episode, time, h, w) — (…, n) with several codebooks per position — uint16, one
+chunk per episode, and records which checkpoint (path and SHA-256) made it. Encoding runs with dask, one task
+per episode chunk, on whatever scheduler is active. Rebuilding with the same checkpoint only encodes episodes
+added to the frames store since; another checkpoint re-encodes everything.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import warnings
+from pathlib import Path
+
+import dask.array as da
+import numpy as np
+import torch
+import zarr
+
+from dynplan.data.store import sha256_file
+
+
+@functools.lru_cache(maxsize=4)
+def _model(checkpoint: str):
+    from dynplan.training.vqvae import load_vqvae_checkpoint
+
+    return load_vqvae_checkpoint(checkpoint)
+
+
+def _encode_block(block: np.ndarray, checkpoint: str) -> np.ndarray:
+    torch.set_num_threads(1)  # dask runs one block per thread/worker already
+    model = _model(checkpoint)
+    E, T = block.shape[:2]
+    codes = model.encode(torch.from_numpy(np.ascontiguousarray(block.reshape(E * T, *block.shape[2:]))))
+    return codes.numpy().astype(np.uint16).reshape(E, T, *codes.shape[1:])
+
+
+def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: str) -> str:
+    """Encode the store's frames with the VQ-VAE in `checkpoint` into the array `codes_<name>`; returns its name."""
+    store, checkpoint = str(store), str(Path(checkpoint).resolve())
+    model = _model(checkpoint)
+    h, w = model.config.grid
+    code_shape = (h, w) if model.config.n_codebooks == 1 else (h, w, model.config.n_codebooks)
+    group = zarr.open_group(store, mode="a", use_consolidated=False)
+    frames = group["frames"]
+    E, T = frames.shape[:2]
+    array_name = f"codes_{name}"
+    sha = sha256_file(checkpoint)
+    done = 0
+    if array_name in group and group[array_name].attrs.get("checkpoint_sha256") == sha:
+        done = int(group[array_name].attrs.get("episodes", 0))
+    else:
+        if array_name in group:
+            del group[array_name]
+        dims = ("episode", "time", "code_y", "code_x", "codebook")[: 2 + len(code_shape)]
+        group.create_array(array_name, shape=(0, T, *code_shape), chunks=(1, T, *code_shape), dtype="uint16",
+                           dimension_names=dims)  # fmt: skip
+    codes = group[array_name]
+    if done < E:
+        codes.resize((E, T, *code_shape))
+        source = da.from_zarr(frames)[done:E]
+        encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, *code_shape))
+        da.store(encoded, codes, regions=(slice(done, E),), lock=False)
+    codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(), episodes=E)
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
+        zarr.consolidate_metadata(store)
+    return array_name
