@@ -150,3 +150,45 @@ def test_train_flow_is_cached_across_runs(tmp_path, store, prefect_api):
     second = train_vqvae_flow(store=str(store), model="paper", out=str(tmp_path), budget=budget, overrides=overrides)
     assert first == second
     assert (np.array([p.stat().st_mtime_ns for p in sorted(tmp_path.rglob("*")) if p.is_file()]) == stamp).all()
+
+
+def test_codes_store_matches_the_encoder_and_is_incremental(tmp_path, store, recorded_logs):
+    import shutil
+
+    import xarray as xr
+    import zarr
+
+    from dynplan.data.codes import build_codes
+    from dynplan.data.datasets import WindowDataset
+
+    local = tmp_path / "frames.zarr"
+    shutil.copytree(store, local)
+    path = train_vqvae(
+        local, tmp_path / "run", TINY, TrainBudget(epochs=1, steps_per_epoch=3, val_frames=20, threads=1)
+    )
+    assert build_codes(local, path, "tiny") == "codes_tiny"
+    group = zarr.open_group(str(local), mode="r")
+    codes = group["codes_tiny"]
+    assert codes.shape == (6, 407, 6, 6) and codes.dtype == np.uint16 and codes.chunks == (1, 407, 6, 6)
+    model = load_vqvae_checkpoint(path)
+    np.testing.assert_array_equal(codes[3], model.encode(torch.from_numpy(group["frames"][3])).numpy())
+    assert codes.attrs["checkpoint"] == str(path.resolve()) and len(codes.attrs["checkpoint_sha256"]) == 64
+    stamp = {p: p.stat().st_mtime_ns for p in (local / "codes_tiny").rglob("c/*")}
+    build_codes(local, path, "tiny")
+    assert {p: p.stat().st_mtime_ns for p in (local / "codes_tiny").rglob("c/*")} == stamp  # nothing re-encoded
+    assert xr.open_zarr(local)["codes_tiny"].dims == ("episode", "time", "code_y", "code_x")
+    context, target = WindowDataset(local, "all", array="codes_tiny")[0]
+    assert context.shape == (4, 6, 6) and target.shape == (6, 6)
+
+
+def test_load_vqvae_names_what_is_missing(tmp_path, store):
+    from dynplan.models import load_vqvae, pretrained_path
+
+    if not pretrained_path("vqvae", "paper").exists():
+        with pytest.raises(CheckpointError, match="no pretrained VQ-VAE 'paper'.*python -m flows.train vqvae"):
+            load_vqvae(model="paper")
+    with pytest.raises(ValueError, match="model must be one of"):
+        load_vqvae(model="huge")
+    path = train_vqvae(store, tmp_path, TINY, TrainBudget(epochs=1, steps_per_epoch=2, val_frames=20, threads=1))
+    model = load_vqvae(path)
+    assert model.decode(model.encode(torch.zeros(1, 48, 48, dtype=torch.uint8))).shape == (1, 48, 48)

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from dynplan.bench.data import bench_data
 from dynplan.bench.mcts import bench_mcts
+from dynplan.bench.vqvae import bench_vqvae
 from dynplan.bench.world import bench_world
 
 Results = dict[str, dict[str, float]]
@@ -20,6 +21,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "world": bench_world,
     "data": bench_data,
     "mcts": bench_mcts,
+    "vqvae": bench_vqvae,
 }
 
 __all__ = ["BENCHMARKS", "Results"]

@@ -1,0 +1,52 @@
+"""`vqvae`: training throughput (frames/s) and encode + decode throughput of each VQ-VAE preset, on 2 cores."""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import torch
+
+from dynplan.env.config import RoadConfig
+from dynplan.env.road import generate_world
+from dynplan.models.vqvae import PRESETS, VQVAE
+
+
+def _train_rate(model: VQVAE, optimiser: torch.optim.Optimizer, batch: torch.Tensor, steps: int) -> float:
+    model.train()
+    start = time.perf_counter()
+    for _ in range(steps):
+        loss = sum(model(batch).losses.values())
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    return steps * len(batch) / (time.perf_counter() - start)
+
+
+def _codec_rate(model: VQVAE, frames: torch.Tensor, n: int = 1024, batch: int = 256) -> float:
+    model.eval()
+    start = time.perf_counter()
+    for i in range(0, n, batch):
+        model.decode(model.encode(frames[i % 128 : i % 128 + batch]))
+    return n / (time.perf_counter() - start)
+
+
+def bench_vqvae(steps: int = 20, repeats: int = 3, threads: int = 2) -> dict[str, dict[str, float]]:
+    """Median over `repeats` of `steps` training batches, and of encoding + decoding 1,024 frames."""
+    torch.set_num_threads(threads)
+    frames = torch.from_numpy(generate_world(RoadConfig(agent_speed=0.5), 0).frames.copy())
+    results = {}
+    for name, config in PRESETS.items():
+        model = VQVAE(config)
+        optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+        batch = frames[: config.batch_size]
+        _train_rate(model, optimiser, batch, 2)  # warm-up
+        _codec_rate(model, frames, 256)
+        train = [_train_rate(model, optimiser, batch, steps) for _ in range(repeats)]
+        results[name] = {
+            "train_frames_per_s": round(statistics.median(train)),
+            "encode_decode_frames_per_s": round(statistics.median(_codec_rate(model, frames) for _ in range(repeats))),
+            "threads": threads,
+            "parameters": sum(p.numel() for p in model.parameters()),
+        }
+    return results
