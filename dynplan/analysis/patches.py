@@ -29,7 +29,7 @@ def patch_coverage(frames: np.ndarray, patch: tuple[int, int], ks: tuple[int, ..
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
     frame_rank = rank[inverse.ravel()].reshape(N, gh * gw).max(axis=1)
-    out: dict[str, float] = {"grid": f"{gh}x{gw}", "tokens": gh * gw, "distinct": int(len(counts))}
+    out: dict[str, float] = {"grid": f"{gh}x{gw}", "tokens": gh * gw, "distinct": len(counts)}
     for k in ks:
         out[f"patches_top{k}"] = round(float(counts[order[:k]].sum() / counts.sum()), 4)
         out[f"frames_top{k}"] = round(float((frame_rank < k).mean()), 4)
