@@ -40,7 +40,7 @@ def _cache_key(context: TaskRunContext, parameters: dict) -> str | None:
     final = run_dir / "vqvae.pt"
     if not final.exists() or checkpoint.load(final, "vqvae")["epoch"] < budget["epochs"]:
         return None
-    return f"{run_dir.name}-epochs{budget['epochs']}"
+    return digest(str(run_dir.resolve()), budget["epochs"])  # the folder's full path: a key per place on disk
 
 
 @task(name="train-vqvae", cache_key_fn=_cache_key, persist_result=True)

@@ -1,0 +1,158 @@
+"""The conditional gated PixelCNN (SPEC §2, stage 2): p(Z_t[i, j] | Z_t[< (i, j)], Z_{t−1 … t−4}).
+
+A gated PixelCNN (van den Oord et al. 2016) over a code grid: a vertical stack that sees the rows above and a
+horizontal stack that sees the codes to the left in the current row, fed from the vertical one; the first
+layer is masked "A" (excludes the current position), the rest "B"; the horizontal stack is residual after the
+first layer. The four previous code grids are embedded, mixed by a small non-causal convolution stack into a
+spatial conditioning map, and added to the gates of every layer.
+
+Shapes: codes (B, h, w) int64 in [0, K); context (B, 4, h, w); logits (B, K, h, w).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from pydantic import Field
+from torch import nn
+
+from dynplan.config import Config
+
+
+class PixelCNNConfig(Config):
+    """Size of the prior; `PIXELCNN_PRESETS` holds the named ones."""
+
+    name: str = Field("custom", description="preset name, recorded in checkpoints")
+    codebook_size: int = Field(512, ge=2, le=65536, description="K: code values (the VQ-VAE's codebook size)")
+    context: int = Field(4, ge=1, le=16, description="previous code grids conditioned on")
+    channels: int = Field(64, ge=4, le=1024, description="channels of both stacks")
+    layers: int = Field(8, ge=2, le=64, description="gated layers (the first is masked A)")
+    first_kernel: int = Field(7, ge=3, le=15, description="kernel of the first layer (odd)")
+    kernel: int = Field(3, ge=3, le=15, description="kernel of the other layers (odd)")
+    embed_dim: int = Field(32, ge=1, le=512, description="embedding size of one code")
+    condition_channels: int = Field(64, ge=1, le=1024, description="channels of the conditioning map")
+    learning_rate: float = Field(3e-4, gt=0, le=1.0, description="Adam learning rate")
+    batch_size: int = Field(64, ge=1, le=8192, description="windows per batch")
+
+
+PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
+    # The reference's size: 15 layers of 256 channels, a 7 × 7 first kernel, then 3 × 3.
+    "reference": PixelCNNConfig(name="reference", channels=256, layers=15, condition_channels=256),
+}
+
+
+class GatedLayer(nn.Module):
+    """One gated layer: vertical and horizontal masked convolutions, both gated, plus the conditioning."""
+
+    def __init__(self, mask: str, channels: int, kernel: int, condition_channels: int, residual: bool):
+        super().__init__()
+        if kernel % 2 != 1:
+            raise ValueError(f"kernel must be odd, got {kernel}")
+        self.mask, self.residual, half = mask, residual, kernel // 2
+        # Vertical: rows i−half … i (cropped so that output row i never sees input rows below i; mask A drops row i).
+        self.vertical = nn.Conv2d(channels, 2 * channels, (half + 1, kernel), padding=(half, half))
+        # Horizontal: columns j−half … j of the current row (mask A drops column j).
+        self.horizontal = nn.Conv2d(channels, 2 * channels, (1, half + 1), padding=(0, half))
+        self.vertical_to_horizontal = nn.Conv2d(2 * channels, 2 * channels, 1)
+        self.horizontal_out = nn.Conv2d(channels, channels, 1)
+        self.condition = nn.Conv2d(condition_channels, 4 * channels, 1)
+
+    @staticmethod
+    def gate(x: torch.Tensor) -> torch.Tensor:
+        a, b = x.chunk(2, dim=1)
+        return torch.tanh(a) * torch.sigmoid(b)
+
+    def forward(self, v: torch.Tensor, h: torch.Tensor, condition: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        rows, cols = v.shape[-2:]
+        v_weight, h_weight = self.vertical.weight, self.horizontal.weight
+        if self.mask == "A":
+            v_weight = v_weight.clone()
+            v_weight[:, :, -1] = 0.0
+            h_weight = h_weight.clone()
+            h_weight[:, :, :, -1] = 0.0
+        v_pre = F.conv2d(v, v_weight, self.vertical.bias, padding=self.vertical.padding)[:, :, :rows]
+        h_pre = F.conv2d(h, h_weight, self.horizontal.bias, padding=self.horizontal.padding)[:, :, :, :cols]
+        c_v, c_h = self.condition(condition).chunk(2, dim=1)
+        v_out = self.gate(v_pre + c_v)
+        # The vertical features of row i depend on rows < i only, so the horizontal stack may use them at row i.
+        h_out = self.horizontal_out(self.gate(self.vertical_to_horizontal(v_pre) + h_pre + c_h))
+        return v_out, (h + h_out if self.residual else h_out)
+
+
+@dataclass
+class PriorOutput:
+    logits: torch.Tensor
+    loss: torch.Tensor
+    accuracy: torch.Tensor
+
+
+class ConditionalPixelCNN(nn.Module):
+    def __init__(self, config: PixelCNNConfig):
+        super().__init__()
+        self.config = c = config
+        self.embed = nn.Embedding(c.codebook_size, c.channels)
+        self.context_embed = nn.Embedding(c.codebook_size, c.embed_dim)
+        self.conditioner = nn.Sequential(
+            nn.Conv2d(c.context * c.embed_dim, c.condition_channels, 3, padding=1),
+            nn.ReLU(),
+            nn.Conv2d(c.condition_channels, c.condition_channels, 3, padding=1),
+        )
+        self.layers = nn.ModuleList(
+            GatedLayer(
+                "A" if i == 0 else "B",
+                c.channels,
+                c.first_kernel if i == 0 else c.kernel,
+                c.condition_channels,
+                residual=i > 0,
+            )  # fmt: skip
+            for i in range(c.layers)
+        )
+        self.head = nn.Sequential(nn.ReLU(), nn.Conv2d(c.channels, c.channels, 1), nn.ReLU(),
+                                  nn.Conv2d(c.channels, c.codebook_size, 1))  # fmt: skip
+
+    def condition(self, context: torch.Tensor) -> torch.Tensor:
+        """context (B, 4, h, w) codes → conditioning map (B, condition_channels, h, w)."""
+        B, n, h, w = context.shape
+        e = self.context_embed(context.long())  # (B, n, h, w, E)
+        return self.conditioner(e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w))
+
+    def logits(self, codes: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
+        """codes (B, h, w), conditioning map → logits (B, K, h, w); position (i, j) sees only codes before it."""
+        return self.logits_from_embedding(self.embed(codes.long()).permute(0, 3, 1, 2), condition)
+
+    def logits_from_embedding(self, x: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
+        """As `logits`, from the embedded grid (B, channels, h, w) — differentiable, for the causality test."""
+        v, h = x, x
+        for layer in self.layers:
+            v, h = layer(v, h, condition)
+        return self.head(h)
+
+    def forward(self, context: torch.Tensor, target: torch.Tensor) -> PriorOutput:
+        """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w)."""
+        logits = self.logits(target, self.condition(context))
+        loss = F.cross_entropy(logits, target.long())
+        accuracy = (logits.argmax(1) == target).float().mean()
+        return PriorOutput(logits, loss, accuracy)
+
+    @torch.inference_mode()
+    def generate_naive(self, context: torch.Tensor, temperature: float = 0.0,
+                       generator: torch.Generator | None = None) -> torch.Tensor:  # fmt: skip
+        """The next code grid, one full forward pass per position (the slow reference): greedy (argmax) when
+        `temperature` is 0, else sampled at that temperature. context (B, 4, h, w) → codes (B, h, w)."""
+        B, _, h, w = context.shape
+        condition = self.condition(context)
+        codes = torch.zeros(B, h, w, dtype=torch.long)
+        for i in range(h):
+            for j in range(w):
+                logits = self.logits(codes, condition)[:, :, i, j]
+                codes[:, i, j] = _pick(logits, temperature, generator)
+        return codes
+
+
+def _pick(logits: torch.Tensor, temperature: float, generator: torch.Generator | None) -> torch.Tensor:
+    if temperature == 0.0:
+        return logits.argmax(-1)
+    probs = torch.softmax(logits / temperature, dim=-1)
+    return torch.multinomial(probs, 1, generator=generator).squeeze(-1)
