@@ -106,7 +106,7 @@ class ConditionalPixelCNN(nn.Module):
                 c.first_kernel if i == 0 else c.kernel,
                 c.condition_channels,
                 residual=i > 0,
-            )  # fmt: skip
+            )
             for i in range(c.layers)
         )
         self.head = nn.Sequential(nn.ReLU(), nn.Conv2d(c.channels, c.channels, 1), nn.ReLU(),
