@@ -43,7 +43,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--agent-speed", type=float, default=1.0, help="1.0 (the paper's 2×) or 0.5 (1×)")
     parser.add_argument("--rollout-steps", type=int, default=3, help="search horizon k (default 3)")
     parser.add_argument("--playouts", type=int, default=100, help="MCTS playouts per decision (default 100)")
-    parser.add_argument("--out", help="replay MCAP to write (default: beside the log, .replay-PLANNER.mcap)")
+    parser.add_argument(
+        "--out", help="replay MCAP to write (default: ../replays/EPISODE.replay-PLANNER.mcap from the log)"
+    )
     parser.add_argument("--gif", help="also write a GIF: observed | true future | predicted | error")
     parser.add_argument("--seed", type=int, default=0, help="seed of the planner's own randomness")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")

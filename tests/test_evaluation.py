@@ -137,3 +137,35 @@ def test_replay_command_line(tmp_path, eval_logs):
         bad = subprocess.run([sys.executable, "-m", "flows.replay", *args], cwd=ROOT, capture_output=True, text=True)
         assert bad.returncode == 2 and text in bad.stderr
         assert "Traceback" not in bad.stderr and text in bad.stderr.strip().splitlines()[-1]
+
+
+def test_results_are_reused_only_for_the_same_playouts_and_log(tmp_path, eval_logs):
+    case = Case("oracle", 1.0, 1, EVAL_SEED_START)
+    first = run_case(case, eval_logs, tmp_path, playouts=10)
+    assert run_case(case, eval_logs, tmp_path, playouts=10) == first
+    again = run_case(case, eval_logs, tmp_path, playouts=20)
+    assert again["playouts"] == 20 and len(again["log_sha256"]) == 64
+    with pytest.raises(ValueError, match="mix playouts"):
+        aggregate([first, again])
+
+
+def test_the_search_never_looks_past_the_timeout_frame(eval_logs):
+    from dynplan.planning.episode import run_episode
+    from dynplan.planning.forward import OracleModel
+    from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+
+    world = read_episode_log(log_path(eval_logs, EVAL_SEED_START)).world()
+    oracle, asked = OracleModel(world), []
+
+    class Spy:
+        name = "spy"
+
+        def predict(self, observed, k):
+            asked.append((len(observed) - 1, k))
+            return oracle.predict(observed, k)
+
+    # A 2× agent on a 407-frame recording: the oracle could show frames past 202, but must not be asked for them.
+    result = run_episode(world, MCTSPlanner(MCTSConfig(rollout_steps=10, playouts=5), 1.0, 203), Spy(), 1.0, 10)
+    assert all(t + k <= 202 for t, k in asked)
+    if result.outcome == "timeout":
+        assert asked[-1] == (201, 1)

@@ -152,3 +152,22 @@ def test_validation_split_is_stable_and_about_the_requested_fraction():
     assert (is_validation(seeds[:100], 0.1) == is_validation(seeds, 0.1)[:100]).all()
     with pytest.raises(ValueError, match=r"val_fraction must be in \[0, 1\)"):
         is_validation(seeds, 1.0)
+
+
+def test_replays_and_second_logs_of_a_seed_are_refused(tmp_path, recorded_logs):
+    from dynplan.evaluation.replay import replay
+    from dynplan.logs import write_episode_log
+
+    logs = tmp_path / "logs"
+    shutil.copytree(recorded_logs, logs)
+    replay(log_path(logs, 1), "random", out=logs / "episode_1.replay.mcap")
+    world = read_episode_log(log_path(logs, 2)).world()
+    altered = world.frames.copy()
+    altered[100, 0, 0] = 144  # same seed and geometry, different content
+    write_episode_log(logs / "other_2.mcap", type(world)(world.config, 2, altered, world.goal, world.agent_start))
+    report = build_frame_store_from_logs(tmp_path / "frames.zarr", list_logs(logs))
+    assert report.episodes == 6
+    assert (
+        "a log of kind 'agent' (a replay), not a recorded world" in report.failed[str(logs / "episode_1.replay.mcap")]
+    )
+    assert "seed 2 is already in the store (episode_0000000002.mcap)" in report.failed[str(logs / "other_2.mcap")]

@@ -1,14 +1,16 @@
 """The Z-code store: every frame of the frames store encoded by a trained VQ-VAE, as a Zarr array beside it.
 
 `codes_<name>` has shape (episode, time, h, w) — (…, n) with several codebooks per position — uint16, one
-chunk per episode, and records which checkpoint (path and SHA-256) made it. Encoding runs with dask, one task
-per episode chunk, on whatever scheduler is active. Rebuilding with the same checkpoint only encodes episodes
-added to the frames store since; another checkpoint re-encodes everything.
+chunk per episode, and records which checkpoint (path and SHA-256) made it and a digest of the frames store's
+episodes it encodes. Encoding runs with dask, one task per episode chunk, on whatever scheduler is active.
+Rebuilding with the same checkpoint only encodes episodes added to the frames store since; another checkpoint,
+or a frames store whose earlier episodes changed, re-encodes everything.
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 import warnings
 from pathlib import Path
@@ -18,7 +20,7 @@ import numpy as np
 import torch
 import zarr
 
-from dynplan.data.store import sha256_file
+from dynplan.data.store import committed_checksums, sha256_file
 
 
 @functools.lru_cache(maxsize=4)
@@ -36,6 +38,10 @@ def _encode_block(block: np.ndarray, checkpoint: str) -> np.ndarray:
     return codes.numpy().astype(np.uint16).reshape(E, T, *codes.shape[1:])
 
 
+def _digest(checksums: list[str]) -> str:
+    return hashlib.sha256("".join(checksums).encode()).hexdigest()
+
+
 def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: str) -> str:
     """Encode the store's frames with the VQ-VAE in `checkpoint` into the array `codes_<name>`; returns its name."""
     store, checkpoint = str(store), str(Path(checkpoint).resolve())
@@ -44,13 +50,18 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
     code_shape = (h, w) if model.config.n_codebooks == 1 else (h, w, model.config.n_codebooks)
     group = zarr.open_group(store, mode="a", use_consolidated=False)
     frames = group["frames"]
-    E, T = frames.shape[:2]
+    checksums = committed_checksums(store)
+    E, T = len(checksums), frames.shape[1]
     array_name = f"codes_{name}"
     sha = sha256_file(checkpoint)
     done = 0
     if array_name in group and group[array_name].attrs.get("checkpoint_sha256") == sha:
+        # Keep what was encoded only if those episodes are still the same ones (the frames store may have been
+        # rolled back and refilled since).
         done = int(group[array_name].attrs.get("episodes", 0))
-    else:
+        if done > E or group[array_name].attrs.get("source_digest") != _digest(checksums[:done]):
+            done = 0
+    if done == 0:
         if array_name in group:
             del group[array_name]
         dims = ("episode", "time", "code_y", "code_x", "codebook")[: 2 + len(code_shape)]
@@ -62,7 +73,8 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         source = da.from_zarr(frames)[done:E]
         encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, *code_shape))
         da.store(encoded, codes, regions=(slice(done, E),), lock=False)
-    codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(), episodes=E)
+    codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(), episodes=E,
+                       source_digest=_digest(checksums))  # fmt: skip
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
         zarr.consolidate_metadata(store)

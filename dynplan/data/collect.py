@@ -67,11 +67,11 @@ def record_episode(out_dir: str | os.PathLike, seed: int, config: RoadConfig | d
             status = "rewritten"
         else:
             recorded = json.loads(log.metadata["config"])
-            if recorded != config.model_dump() or log.n_frames != n_frames:
+            if recorded != config.model_dump() or log.n_frames != n_frames or log.seed != seed:
                 raise LogError(
                     path,
-                    f"already holds seed {seed} recorded with {recorded} over {log.n_frames} frames; "
-                    f"this run asks for {config.model_dump()} over {n_frames} — use another output folder",
+                    f"already holds seed {log.seed} recorded with {recorded} over {log.n_frames} frames; "
+                    f"this run asks for seed {seed}, {config.model_dump()} over {n_frames} — use another output folder",
                 )
             return RecordResult(seed, str(path), "skipped")
     write_episode_log(path, generate_world(config, seed, n_frames), n_frames=n_frames)

@@ -39,8 +39,9 @@ class _EpisodeArray(Dataset):
         if array not in group:
             raise KeyError(f"{store}: no array {array!r} (has {sorted(group.array_keys())})")
         self.array = group[array]
-        self.seeds = group["seed"][:]
-        n_episodes = min(len(self.seeds), self.array.shape[0])
+        n_episodes = int(group.attrs.get("episodes", 0))  # committed episodes (arrays may run longer)
+        n_episodes = min(n_episodes, int(self.array.attrs.get("episodes", n_episodes)))  # e.g. codes not yet built
+        self.seeds = group["seed"][:n_episodes]
         validation = is_validation(self.seeds[:n_episodes], val_fraction)
         keep = {"train": ~validation, "validation": validation, "all": np.ones(n_episodes, bool)}[split]
         self.episodes = np.nonzero(keep)[0]

@@ -14,8 +14,9 @@ Group attributes hold the format, the world config, n_frames, height, width and 
 Row 0 of `y` is the bottom of the world.
 
 Appending is incremental: logs whose SHA-256 is already in `log_sha256` are skipped, new ones are appended in
-(seed, name) order. `log_sha256` is written last for each batch and is the store's commit record, so an
-interrupted append is rolled back (other arrays truncated to its length) by the next build.
+(seed, name) order; replays and a second log of a seed already in are refused. The group attribute `episodes`
+is written after each batch and is the store's commit record: arrays may be longer after an interrupted
+append, and the next build truncates them back to it.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ STORE_VERSION = "1"
 #: Episodes appended per dask computation (bounds memory: 64 × 407 × 48 × 48 B ≈ 60 MB).
 BATCH_EPISODES = 64
 
-INDEX_ARRAYS = ("seed", "log_name", "log_sha256")
+ARRAYS = ("frames", "goal", "seed", "log_name", "log_sha256")
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ class LogInfo:
     width: int = 0
     config: dict = field(default_factory=dict)
     goal: np.ndarray | None = None
+    kind: str = "world"
     error: str | None = None
 
     @property
@@ -98,7 +100,8 @@ def inspect_for_store(path: str | os.PathLike) -> LogInfo:
     except LogError as error:
         return LogInfo(path, sha, error=str(error))
     H, W = log.frames.shape[1:]
-    return LogInfo(path, sha, log.seed, log.n_frames, H, W, json.loads(log.metadata["config"]), log.goal)
+    config = json.loads(log.metadata["config"])
+    return LogInfo(path, sha, log.seed, log.n_frames, H, W, config, log.goal, log.metadata.get("kind", "world"))
 
 
 def load_frames(path: str) -> np.ndarray:
@@ -123,17 +126,18 @@ def _create(group: zarr.Group, first: LogInfo) -> None:
     from dynplan import __version__
 
     group.attrs.update(
+        episodes=0,
         format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **_geometry(first),
         pixel_values={"free": FREE, "goal": GOAL_VALUE, **{c.name: c.value for c in obstacle_classes(W)}},
         y_axis="row 0 is the bottom of the world",
     )  # fmt: skip
+    # overwrite=True: a first build killed half-way through creating these is simply started again.
     group.create_array("frames", shape=(0, T, H, W), chunks=(1, T, H, W), dtype="uint8",
-                       dimension_names=("episode", "time", "y", "x"))  # fmt: skip
+                       dimension_names=("episode", "time", "y", "x"), overwrite=True)  # fmt: skip
     group.create_array("goal", shape=(0, T, 2), chunks=(BATCH_EPISODES, T, 2), dtype="float64",
-                       dimension_names=("episode", "time", "yx"))  # fmt: skip
-    group.create_array("seed", shape=(0,), chunks=(1024,), dtype="int64", dimension_names=("episode",))
-    group.create_array("log_name", shape=(0,), chunks=(1024,), dtype=str, dimension_names=("episode",))
-    group.create_array("log_sha256", shape=(0,), chunks=(1024,), dtype=str, dimension_names=("episode",))
+                       dimension_names=("episode", "time", "yx"), overwrite=True)  # fmt: skip
+    for name, dtype in (("seed", "int64"), ("log_name", str), ("log_sha256", str)):
+        group.create_array(name, shape=(0,), chunks=(1024,), dtype=dtype, dimension_names=("episode",), overwrite=True)
 
 
 def _resize_episodes(array: zarr.Array, n: int) -> None:
@@ -141,18 +145,24 @@ def _resize_episodes(array: zarr.Array, n: int) -> None:
         array.resize((n, *array.shape[1:]))
 
 
+def committed(group: zarr.Group) -> int:
+    """Episodes committed to the store: the `episodes` attribute, written after each appended batch."""
+    return int(group.attrs.get("episodes", 0)) if "log_sha256" in group else 0
+
+
 def committed_checksums(store: str | os.PathLike) -> list[str]:
     """SHA-256 of every log committed to `store` (empty if there is no store yet)."""
     if not Path(store).exists():
         return []
-    group = zarr.open_group(store, mode="r", use_consolidated=False)
-    return list(group["log_sha256"][:]) if "log_sha256" in group else []
+    group = zarr.open_group(str(store), mode="r", use_consolidated=False)
+    n = committed(group)
+    return list(group["log_sha256"][:n]) if n else []
 
 
 def fingerprint(store: str | os.PathLike) -> str:
     """A key for the store's contents: its config, frame count and the checksums of its logs, in order."""
     group = zarr.open_group(str(store), mode="r", use_consolidated=False)
-    parts = [group.attrs.get("config"), group.attrs.get("n_frames"), list(group["log_sha256"][:])]
+    parts = [group.attrs.get("config"), group.attrs.get("n_frames"), committed_checksums(store)]
     return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()
 
 
@@ -180,37 +190,42 @@ def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> Bui
     # Consolidated metadata may be stale after an interrupted append: write against the arrays' own metadata.
     group = zarr.open_group(store, mode="a", zarr_format=3, use_consolidated=False)
     pending = sorted(new.values(), key=lambda i: (i.seed, i.name))
-    if "log_sha256" not in group:
+    if committed(group) == 0:
         _create(group, pending[0])
+    n = committed(group)
     expected = {k: group.attrs[k] for k in ("config", "n_frames", "height", "width")}
+    seeds = {int(seed): str(name) for seed, name in zip(group["seed"][:n], group["log_name"][:n], strict=True)}
     accepted = []
     for info in pending:
-        if _geometry(info) != expected:
+        if info.kind != "world":
+            report.failed[info.path] = f"{info.path}: a log of kind {info.kind!r} (a replay), not a recorded world"
+        elif _geometry(info) != expected:
             report.failed[info.path] = (
                 f"{info.path}: recorded as {_geometry(info)}, but the store holds {expected}; use another store"
             )
+        elif info.seed in seeds:
+            report.failed[info.path] = f"{info.path}: seed {info.seed} is already in the store ({seeds[info.seed]})"
         else:
+            seeds[info.seed] = info.name
             accepted.append(info)
 
-    n = group["log_sha256"].shape[0]
-    for name in ("frames", "goal", "seed", "log_name"):  # roll back an interrupted append
+    for name in ARRAYS:  # roll back an interrupted append
         _resize_episodes(group[name], n)
     T, H, W = expected["n_frames"], expected["height"], expected["width"]
     for start in range(0, len(accepted), BATCH_EPISODES):
         batch = accepted[start : start + BATCH_EPISODES]
         k = len(batch)
-        for name in ("frames", "goal", "seed", "log_name"):
+        for name in ARRAYS:
             _resize_episodes(group[name], n + k)
         frames = da.stack([da.from_delayed(dask.delayed(load_frames)(i.path), (T, H, W), np.uint8) for i in batch])
         da.store(frames, group["frames"], regions=(slice(n, n + k),), lock=False)
         group["goal"][n : n + k] = np.stack([i.goal for i in batch])
         group["seed"][n : n + k] = np.array([i.seed for i in batch], dtype=np.int64)
         group["log_name"][n : n + k] = np.array([i.name for i in batch])
-        _resize_episodes(group["log_sha256"], n + k)
-        group["log_sha256"][n : n + k] = np.array([i.sha256 for i in batch])  # commit
+        group["log_sha256"][n : n + k] = np.array([i.sha256 for i in batch])
         n += k
+        group.attrs["episodes"] = n  # the commit: everything up to n is complete
         report.added.extend(i.path for i in batch)
-    group.attrs["episodes"] = n
     report.episodes = n
     _consolidate(store)
     return report

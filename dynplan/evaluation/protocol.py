@@ -16,10 +16,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from dynplan.data.collect import log_path
+from dynplan.data.store import sha256_file
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.files import write_bytes_atomic
-from dynplan.logs.reader import read_episode_log
+from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
@@ -78,15 +79,22 @@ def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
 
 
 def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100) -> dict:
-    """Play one case against its recorded episode and write its result JSON (or return the existing one)."""
+    """Play one case against its recorded episode and write its result JSON — or return the existing one, if it
+    was played with the same playouts against the same log (by checksum)."""
     path = case.result_path(results_dir)
+    source = log_path(log_dir, case.seed)
+    log_sha256 = sha256_file(source) if source.exists() else None
     if path.exists():
         try:
-            return json.loads(path.read_text())
+            record = json.loads(path.read_text())
         except json.JSONDecodeError:
-            pass  # a damaged result is recomputed
+            record = {}  # a damaged result is recomputed
+        if record.get("playouts") == playouts and record.get("log_sha256") == log_sha256:
+            return record  # the same case against the same recorded episode: reuse
     start = time.perf_counter()
-    log = read_episode_log(log_path(log_dir, case.seed))
+    log = read_episode_log(source)
+    if log.seed != case.seed:
+        raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {case.seed}")
     world = log.world()
     model = MODELS[case.technique](world)
     if case.rollout_steps is None:
@@ -101,6 +109,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
         "outcome": result.outcome,
         "steps": result.steps,
         "playouts": playouts,
+        "log_sha256": log_sha256,
         "decision_ms": [round(ms, 4) for ms in result.decision_ms],
         "wall_s": round(time.perf_counter() - start, 4),
     }

@@ -94,6 +94,7 @@ def _gif_panel(frames: np.ndarray, t: int, position: np.ndarray, prediction: Pre
 
 
 def default_outputs(log: str | os.PathLike, planner: str) -> Path:
-    """Default replay log path: beside the input, named for the planner."""
+    """Default replay log path: a `replays/` folder beside the input's folder (kept apart from recorded
+    episodes, so that a folder of logs stays a folder of worlds), named for the episode and the planner."""
     log = Path(log)
-    return log.with_name(f"{log.stem}.replay-{planner}.mcap")
+    return log.parent.parent / "replays" / f"{log.stem}.replay-{planner}.mcap"

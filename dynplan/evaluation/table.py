@@ -34,6 +34,9 @@ def aggregate(results: list[dict]) -> list[dict]:
         groups[(r["technique"], r["agent_speed"], r["rollout_steps"])].append(r)
     rows = []
     for (technique, speed, k), episodes in groups.items():
+        playouts = {e.get("playouts") for e in episodes}
+        if len(playouts) > 1:
+            raise ValueError(f"results of {technique} at speed {speed}, k={k} mix playouts {sorted(playouts)}")
         outcomes = [e["outcome"] for e in episodes]
         survived = np.array([e["steps"] for e in episodes if e["outcome"] != "death"], dtype=np.float64)
         times = np.concatenate([np.asarray(e["decision_ms"], dtype=np.float64) for e in episodes])
@@ -42,6 +45,7 @@ def aggregate(results: list[dict]) -> list[dict]:
             "agent_speed": speed,
             "rollout_steps": k,
             "episodes": len(episodes),
+            "playouts": playouts.pop(),
             "G": outcomes.count("goal"),
             "T": outcomes.count("timeout"),
             "D": outcomes.count("death"),

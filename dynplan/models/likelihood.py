@@ -26,8 +26,8 @@ def to_unit(frames: torch.Tensor) -> torch.Tensor:
 
 def value_index(frames: torch.Tensor) -> torch.Tensor:
     """uint8 frames on world values → class indices 0 … 6 (int64)."""
-    lut = torch.zeros(256, dtype=torch.long)
-    lut[list(WORLD_VALUES)] = torch.arange(len(WORLD_VALUES))
+    lut = torch.zeros(256, dtype=torch.long, device=frames.device)
+    lut[list(WORLD_VALUES)] = torch.arange(len(WORLD_VALUES), device=frames.device)
     return lut[frames.long()]
 
 
@@ -78,10 +78,10 @@ class DMoL:
     def sample(self, params: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         """One sample per pixel from the mixture, snapped: uint8 (B, H, W)."""
         logit_pi, mu, log_s = self._split(params)
-        u = torch.rand(logit_pi.shape, generator=generator).clamp(1e-5, 1 - 1e-5)
+        u = torch.rand(logit_pi.shape, generator=generator, device=params.device).clamp(1e-5, 1 - 1e-5)
         component = (logit_pi - torch.log(-torch.log(u))).argmax(dim=1, keepdim=True)
         mu, log_s = mu.gather(1, component).squeeze(1), log_s.gather(1, component).squeeze(1)
-        v = torch.rand(mu.shape, generator=generator).clamp(1e-5, 1 - 1e-5)
+        v = torch.rand(mu.shape, generator=generator, device=params.device).clamp(1e-5, 1 - 1e-5)
         return snap((mu + torch.exp(log_s) * (torch.log(v) - torch.log1p(-v))).clamp(-1.0, 1.0))
 
 
@@ -94,8 +94,9 @@ class Categorical:
         return F.cross_entropy(logits, value_index(frames), reduction="none")
 
     def mid(self, logits: torch.Tensor) -> torch.Tensor:
-        return torch.tensor(WORLD_VALUES, dtype=torch.uint8)[logits.argmax(dim=1)]
+        return torch.tensor(WORLD_VALUES, dtype=torch.uint8, device=logits.device)[logits.argmax(dim=1)]
 
     def sample(self, logits: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
-        u = torch.rand(logits.shape, generator=generator).clamp(1e-5, 1 - 1e-5)
-        return torch.tensor(WORLD_VALUES, dtype=torch.uint8)[(logits - torch.log(-torch.log(u))).argmax(dim=1)]
+        u = torch.rand(logits.shape, generator=generator, device=logits.device).clamp(1e-5, 1 - 1e-5)
+        values = torch.tensor(WORLD_VALUES, dtype=torch.uint8, device=logits.device)
+        return values[(logits - torch.log(-torch.log(u))).argmax(dim=1)]

@@ -36,8 +36,10 @@ class VectorQuantizer(nn.Module):
         embed = torch.randn(n_codebooks, codebook_size, dim) / dim**0.5
         if ema:
             self.register_buffer("embed", embed)
-            # Zero use at the start: codes the first batches do not pick are restarted onto encoder outputs.
-            self.register_buffer("cluster_size", torch.zeros(n_codebooks, codebook_size))
+            # With restarts, zero use at the start: codes the first batches do not pick are restarted onto encoder
+            # outputs. Without, one pseudo-vector per code, so an unpicked code stays where it is.
+            initial_use = torch.zeros if restart_dead else torch.ones
+            self.register_buffer("cluster_size", initial_use(n_codebooks, codebook_size))
             self.register_buffer("embed_sum", embed.clone())
         else:
             self.embed = nn.Parameter(embed)

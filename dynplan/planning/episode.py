@@ -47,8 +47,9 @@ def run_episode(
 ) -> EpisodeResult:
     """Play `world` (e.g. read from a log) at `agent_speed` until goal, death or timeout.
 
-    Each decision asks `model` for the next `rollout_steps` frames given the frames observed so far (a random
-    planner needs no model) and times prediction plus search together.
+    Each decision asks `model` for the next `rollout_steps` frames given the frames observed so far — fewer near
+    the end: never past frame T − 1, where the episode times out — (a random planner needs no model) and times
+    prediction plus search together.
     """
     config = RoadConfig.from_dict(world.config.model_dump(), agent_speed=agent_speed)
     env = RoadEnv(config=config)
@@ -59,7 +60,8 @@ def run_episode(
     reward, outcome = 0.0, "running"
     while outcome == "running":
         start = time.perf_counter()
-        prediction = model.predict(world.frames[: env.t + 1], rollout_steps) if model is not None else None
+        horizon = min(rollout_steps, config.max_steps - 1 - env.t)  # nothing after the timeout frame counts
+        prediction = model.predict(world.frames[: env.t + 1], horizon) if model is not None else None
         decision = planner.act(env.position, env.t, prediction)
         times.append((time.perf_counter() - start) * 1e3)
         if on_decision is not None:

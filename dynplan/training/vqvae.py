@@ -127,6 +127,8 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
         model.load_state_dict(state["model"])
         optimiser.load_state_dict(state["optimiser"])
         epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
+        if "torch_rng" in state:
+            torch.set_rng_state(state["torch_rng"])  # code restarts draw from it: resume bit for bit
     write_bytes_atomic(out_dir / "config.json", json.dumps(config.model_dump(), indent=1).encode())
 
     train = FrameDataset(store, "train" if len(FrameDataset(store, "train").episodes) else "all")
@@ -167,7 +169,7 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
         history.append(row)
         checkpoint.save(latest, {"kind": KIND, "config": config.model_dump(), "model": model.state_dict(),
                                  "optimiser": optimiser.state_dict(), "epoch": epoch, "elapsed_s": elapsed,
-                                 "history": history})  # fmt: skip
+                                 "history": history, "torch_rng": torch.get_rng_state()})  # fmt: skip
         write_csv(out_dir / "metrics.csv", history)
         plot_reconstructions(model, val, out_dir / "reconstructions.png")
         if on_epoch:
