@@ -8,40 +8,23 @@ the losses, codebook use and perplexity, and the reconstruction errors that matt
 
 from __future__ import annotations
 
-import csv
-import io
-import json
 import os
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import torch
-from pydantic import Field
 
-from dynplan.config import Config
 from dynplan.data.datasets import FrameDataset
-from dynplan.files import write_bytes_atomic
 from dynplan.models.metrics import frame_errors
 from dynplan.models.vqvae import VQVAE, VQVAEConfig
-from dynplan.training import checkpoint
+from dynplan.training import checkpoint, loop
+from dynplan.training.loop import TrainBudget
 
 KIND = "vqvae"
 #: Part of a training run's cache key. Bump it whenever a change to the model, likelihood, quantizer or this
 #: loop would change what training produces; edits that do not (docs, names) keep runs resumable.
 CODE_VERSION = "vqvae-1"
-
-
-class TrainBudget(Config):
-    """How long to train: epochs of `steps_per_epoch` batches, optionally capped in wall-clock minutes."""
-
-    epochs: int = Field(20, ge=1, le=100_000, description="epochs to train (in total, counting resumed ones)")
-    steps_per_epoch: int = Field(500, ge=1, le=1_000_000, description="batches per epoch")
-    val_frames: int = Field(2000, ge=1, le=1_000_000, description="validation frames scored after each epoch")
-    max_minutes: float | None = Field(None, gt=0, description="stop (resumably) after this much wall time")
-    threads: int | None = Field(None, ge=1, le=256, description="torch threads (default: all cores)")
-    seed: int = Field(0, ge=0, description="seed of initialisation and batch order")
 
 
 def _validation_frames(store: str, n: int) -> np.ndarray:
@@ -112,86 +95,44 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
     """
     store, out_dir = str(store), Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    final = out_dir / "vqvae.pt"
-    if final.exists() and checkpoint.load(final, KIND, config.model_dump())["epoch"] >= budget.epochs:
-        return final
+    done = loop.finished(out_dir, KIND, config.model_dump(), budget.epochs)
+    if done is not None:
+        return done
     if budget.threads:
         torch.set_num_threads(budget.threads)
     torch.manual_seed(budget.seed)
     model = VQVAE(config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-    epoch, elapsed, history = 0, 0.0, []
-    latest = out_dir / "checkpoint.pt"
-    if latest.exists():
-        state = checkpoint.load(latest, KIND, config.model_dump())
-        model.load_state_dict(state["model"])
-        optimiser.load_state_dict(state["optimiser"])
-        epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
-        if "torch_rng" in state:
-            torch.set_rng_state(state["torch_rng"])  # code restarts draw from it: resume bit for bit
-    write_bytes_atomic(out_dir / "config.json", json.dumps(config.model_dump(), indent=1).encode())
-
     train = FrameDataset(store, "train" if len(FrameDataset(store, "train").episodes) else "all")
     frames = np.stack([train.array[int(e)] for e in train.episodes])  # (E, T, H, W) in memory, read once
     E, T = frames.shape[:2]
     val = _validation_frames(store, budget.val_frames)
-    started = time.perf_counter()
-    while epoch < budget.epochs:
-        if budget.max_minutes and (time.perf_counter() - started) / 60 >= budget.max_minutes:
-            break
-        generator = torch.Generator().manual_seed(budget.seed * 1_000_003 + epoch)
-        totals: dict[str, float] = {}
-        counts = torch.zeros(config.n_codebooks, config.codebook_size)
-        t0 = time.perf_counter()
-        for _ in range(budget.steps_per_epoch):
-            e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
-            t = torch.randint(0, T, (config.batch_size,), generator=generator).numpy()
-            out = model(torch.from_numpy(frames[e, t]))
-            loss = sum(out.losses.values())
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            optimiser.step()
-            counts += out.counts
-            for name, value in {**out.losses, "loss": loss, "perplexity": out.perplexity}.items():
-                totals[name] = totals.get(name, 0.0) + value.item()
-        epoch_s = time.perf_counter() - t0
-        elapsed += epoch_s
-        epoch += 1
-        row = {
-            "epoch": epoch,
-            "frames_seen": epoch * budget.steps_per_epoch * config.batch_size,
-            **{k: v / budget.steps_per_epoch for k, v in totals.items()},
-            "codebook_usage": float((counts > 0).float().mean()),
-            "train_frames_per_s": budget.steps_per_epoch * config.batch_size / epoch_s,
-            "elapsed_s": elapsed,
-            **evaluate(model, val),
+    counts = torch.zeros(config.n_codebooks, config.codebook_size)
+
+    def step(generator: torch.Generator) -> dict[str, float]:
+        e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
+        t = torch.randint(0, T, (config.batch_size,), generator=generator).numpy()
+        out = model(torch.from_numpy(frames[e, t]))
+        loss = sum(out.losses.values())
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        counts.add_(out.counts)
+        return {
+            name: value.item() for name, value in {**out.losses, "loss": loss, "perplexity": out.perplexity}.items()
         }
-        history.append(row)
-        checkpoint.save(latest, {"kind": KIND, "config": config.model_dump(), "model": model.state_dict(),
-                                 "optimiser": optimiser.state_dict(), "epoch": epoch, "elapsed_s": elapsed,
-                                 "history": history, "torch_rng": torch.get_rng_state()})  # fmt: skip
-        write_csv(out_dir / "metrics.csv", history)
-        plot_reconstructions(model, val, out_dir / "reconstructions.png")
-        if on_epoch:
-            on_epoch(row)
-    if epoch >= budget.epochs:
-        state = checkpoint.load(latest, KIND, config.model_dump())
-        checkpoint.save(final, {"kind": KIND, "config": state["config"], "model": state["model"],
-                                "epoch": state["epoch"], "elapsed_s": state["elapsed_s"],
-                                "history": state["history"]})  # fmt: skip
-        return final
-    return latest
 
+    def epoch_end() -> dict[str, float]:
+        usage = float((counts > 0).float().mean())
+        counts.zero_()
+        return {"codebook_usage": usage}
 
-def write_csv(path: Path, rows: list[dict]) -> None:
-    """Write the metrics history as CSV, atomically (rewritten whole each epoch, so it always matches the
-    checkpoint it sits beside)."""
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({k: (round(v, 6) if isinstance(v, float) else v) for k, v in row.items()})
-    write_bytes_atomic(path, buffer.getvalue().encode())
+    def plot(folder: Path) -> None:
+        plot_reconstructions(model, val, folder / "reconstructions.png")
+
+    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step,
+                       evaluate=lambda: evaluate(model, val), epoch_end=epoch_end, plot=plot)  # fmt: skip
+    return loop.train(out_dir, stage, budget, on_epoch)
 
 
 def load_vqvae_checkpoint(path: str | os.PathLike, config: VQVAEConfig | None = None) -> VQVAE:

@@ -1,0 +1,129 @@
+"""The training loop every world-model stage shares: epochs, checkpoints, resumption, metrics history.
+
+An "epoch" is `steps_per_epoch` optimisation steps on batches drawn at random (the stores hold millions of
+items; a checkpoint every few minutes is what makes training resumable across sessions). A stage supplies
+how to take one step, what to report at the end of an epoch, how to evaluate and what to draw; the loop owns
+`checkpoint.pt` (latest: model, optimiser, RNG, history), `metrics.csv`, and the final `<kind>.pt`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+from pydantic import Field
+
+from dynplan.config import Config
+from dynplan.files import write_bytes_atomic
+from dynplan.training import checkpoint
+
+
+class TrainBudget(Config):
+    """How long to train: epochs of `steps_per_epoch` batches, optionally capped in wall-clock minutes."""
+
+    epochs: int = Field(20, ge=1, le=100_000, description="epochs to train (in total, counting resumed ones)")
+    steps_per_epoch: int = Field(500, ge=1, le=1_000_000, description="batches per epoch")
+    val_frames: int = Field(2000, ge=1, le=1_000_000, description="validation items scored after each epoch")
+    max_minutes: float | None = Field(None, gt=0, description="stop (resumably) after this much wall time")
+    threads: int | None = Field(None, ge=1, le=256, description="torch threads (default: all cores)")
+    seed: int = Field(0, ge=0, description="seed of initialisation and batch order")
+
+
+@dataclass
+class Stage:
+    """What a world-model stage plugs into the loop.
+
+    step(generator) → scalars of one optimisation step on a batch it draws with `generator`
+    epoch_end() → extra training metrics of the epoch just finished (and resets whatever it accumulates)
+    evaluate() → validation metrics
+    plot(out_dir) → draw pictures of the current model (optional)
+    unit: what a batch item is ("frames", "windows"), for the throughput columns
+    """
+
+    kind: str
+    config: dict
+    model: torch.nn.Module
+    optimiser: torch.optim.Optimizer
+    batch_size: int
+    step: Callable[[torch.Generator], dict[str, float]]
+    evaluate: Callable[[], dict[str, float]]
+    epoch_end: Callable[[], dict[str, float]] = dict
+    plot: Callable[[Path], None] | None = None
+    unit: str = "frames"
+
+
+def finished(out_dir: Path, stage_kind: str, config: dict, epochs: int) -> Path | None:
+    """The final checkpoint of a run in `out_dir` if it has at least `epochs` (a config mismatch is an error)."""
+    final = out_dir / f"{stage_kind}.pt"
+    if final.exists() and checkpoint.load(final, stage_kind, config)["epoch"] >= epochs:
+        return final
+    return None
+
+
+def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None) -> Path:
+    """Run `stage` in `out_dir` up to `budget.epochs`, resuming from `checkpoint.pt`; return the final checkpoint,
+    or the latest if `budget.max_minutes` stopped it first."""
+    latest, final = out_dir / "checkpoint.pt", out_dir / f"{stage.kind}.pt"
+    epoch, elapsed, history = 0, 0.0, []
+    if latest.exists():
+        state = checkpoint.load(latest, stage.kind, stage.config)
+        stage.model.load_state_dict(state["model"])
+        stage.optimiser.load_state_dict(state["optimiser"])
+        epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
+        if "torch_rng" in state:
+            torch.set_rng_state(state["torch_rng"])  # e.g. codebook restarts draw from it: resume bit for bit
+    write_bytes_atomic(out_dir / "config.json", json.dumps(stage.config, indent=1).encode())
+    started = time.perf_counter()
+    while epoch < budget.epochs:
+        if budget.max_minutes and (time.perf_counter() - started) / 60 >= budget.max_minutes:
+            break
+        generator = torch.Generator().manual_seed(budget.seed * 1_000_003 + epoch)
+        totals: dict[str, float] = {}
+        t0 = time.perf_counter()
+        for _ in range(budget.steps_per_epoch):
+            for name, value in stage.step(generator).items():
+                totals[name] = totals.get(name, 0.0) + value
+        epoch_s = time.perf_counter() - t0
+        elapsed += epoch_s
+        epoch += 1
+        items = budget.steps_per_epoch * stage.batch_size
+        row = {
+            "epoch": epoch,
+            f"{stage.unit}_seen": epoch * items,
+            **{k: v / budget.steps_per_epoch for k, v in totals.items()},
+            **stage.epoch_end(),
+            f"train_{stage.unit}_per_s": items / epoch_s,
+            "elapsed_s": elapsed,
+            **stage.evaluate(),
+        }
+        history.append(row)
+        checkpoint.save(latest, {"kind": stage.kind, "config": stage.config, "model": stage.model.state_dict(),
+                                 "optimiser": stage.optimiser.state_dict(), "epoch": epoch, "elapsed_s": elapsed,
+                                 "history": history, "torch_rng": torch.get_rng_state()})  # fmt: skip
+        write_csv(out_dir / "metrics.csv", history)
+        if stage.plot is not None:
+            stage.plot(out_dir)
+        if on_epoch:
+            on_epoch(row)
+    if epoch < budget.epochs:
+        return latest
+    state = checkpoint.load(latest, stage.kind, stage.config)
+    checkpoint.save(final, {key: state[key] for key in ("kind", "config", "model", "epoch", "elapsed_s", "history")})
+    return final
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """Write the metrics history as CSV, atomically (rewritten whole each epoch, so it always matches the
+    checkpoint it sits beside)."""
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: (round(v, 6) if isinstance(v, float) else v) for k, v in row.items()})
+    write_bytes_atomic(path, buffer.getvalue().encode())
