@@ -1,5 +1,6 @@
-"""`python -m flows.train vqvae --store STORE.zarr [--model default|paper]`: train a world-model stage as a
-cached, resumable Prefect task, then encode the store with it (the `codes_<model>` array).
+"""`python -m flows.train vqvae|pixelcnn --store STORE.zarr [--model default|paper]`: train a world-model stage
+as a cached, resumable Prefect task. After the VQ-VAE the flow encodes the store with it (`codes_<model>`),
+which the PixelCNN prior of the same model then trains on.
 
 The run's folder is named by what determines its result — (dataset fingerprint, config, batches per epoch,
 seed, code version) — so a rerun with the same inputs returns the finished checkpoint at once (a Prefect cache
@@ -13,6 +14,7 @@ import argparse
 import json
 from pathlib import Path
 
+import zarr
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.context import TaskRunContext
@@ -20,35 +22,68 @@ from prefect.context import TaskRunContext
 from dynplan.config import ConfigError
 from dynplan.data.codes import build_codes
 from dynplan.data.store import fingerprint
+from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
 from dynplan.training import checkpoint
 from dynplan.training.checkpoint import digest
-from dynplan.training.vqvae import CODE_VERSION, TrainBudget, train_vqvae
+from dynplan.training.loop import TrainBudget
+from dynplan.training.pixelcnn import CODE_VERSION as PIXELCNN_CODE_VERSION
+from dynplan.training.pixelcnn import train_pixelcnn
+from dynplan.training.vqvae import CODE_VERSION as VQVAE_CODE_VERSION
+from dynplan.training.vqvae import train_vqvae
+
+
+def _run_dir(kind: str, out: str, config: dict, budget: dict, sources: list, code_version: str) -> Path:
+    """Where a training run lives: named by what determines its result (the epoch count excepted)."""
+    determining = {k: v for k, v in budget.items() if k not in ("epochs", "max_minutes", "threads")}
+    key = digest(*sources, config, determining, code_version)
+    return Path(out) / f"{kind}-{config['name']}-{key[:12]}"
 
 
 def vqvae_run_dir(store: str, out: str, config: dict, budget: dict) -> Path:
-    """Where a training run lives: named by what determines its result."""
-    determining = {k: v for k, v in budget.items() if k not in ("epochs", "max_minutes", "threads")}
-    key = digest(fingerprint(store), config, determining, CODE_VERSION)
-    return Path(out) / f"vqvae-{config['name']}-{key[:12]}"
+    return _run_dir("vqvae", out, config, budget, [fingerprint(store)], VQVAE_CODE_VERSION)
 
 
-def _cache_key(context: TaskRunContext, parameters: dict) -> str | None:
-    """Cache only finished runs: a key exists once the run's final checkpoint has the epochs asked for."""
-    budget = parameters["budget"]
-    run_dir = vqvae_run_dir(parameters["store"], parameters["out"], parameters["config"], budget)
-    final = run_dir / "vqvae.pt"
-    if not final.exists() or checkpoint.load(final, "vqvae")["epoch"] < budget["epochs"]:
+def pixelcnn_run_dir(store: str, codes: str, out: str, config: dict, budget: dict) -> Path:
+    attrs = zarr.open_group(store, mode="r", use_consolidated=False)[codes].attrs
+    sources = [fingerprint(store), attrs["source_digest"], attrs["checkpoint_sha256"]]
+    return _run_dir("pixelcnn", out, config, budget, sources, PIXELCNN_CODE_VERSION)
+
+
+def _finished_key(run_dir: Path, kind: str, epochs: int) -> str | None:
+    """Cache only finished runs: a key exists once the run's final checkpoint has the epochs asked for. The key
+    is the folder's full path, so each place on disk caches its own run."""
+    final = run_dir / f"{kind}.pt"
+    if not final.exists() or checkpoint.load(final, kind)["epoch"] < epochs:
         return None
-    return digest(str(run_dir.resolve()), budget["epochs"])  # the folder's full path: a key per place on disk
+    return digest(str(run_dir.resolve()), epochs)
 
 
-@task(name="train-vqvae", cache_key_fn=_cache_key, persist_result=True)
+def _vqvae_key(context: TaskRunContext, p: dict) -> str | None:
+    return _finished_key(vqvae_run_dir(p["store"], p["out"], p["config"], p["budget"]), "vqvae", p["budget"]["epochs"])
+
+
+def _pixelcnn_key(context: TaskRunContext, p: dict) -> str | None:
+    run_dir = pixelcnn_run_dir(p["store"], p["codes"], p["out"], p["config"], p["budget"])
+    return _finished_key(run_dir, "pixelcnn", p["budget"]["epochs"])
+
+
+def _show(keys: tuple[str, ...]):
+    return lambda row: print(json.dumps({k: row[k] for k in keys}))
+
+
+@task(name="train-vqvae", cache_key_fn=_vqvae_key, persist_result=True)
 def train_vqvae_task(store: str, out: str, config: dict, budget: dict) -> str:
     run_dir = vqvae_run_dir(store, out, config, budget)
     shown = ("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used")
-    path = train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget),
-                       on_epoch=lambda row: print(json.dumps({k: row[k] for k in shown})))  # fmt: skip
+    return str(train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget), on_epoch=_show(shown)))
+
+
+@task(name="train-pixelcnn", cache_key_fn=_pixelcnn_key, persist_result=True)
+def train_pixelcnn_task(store: str, codes: str, out: str, config: dict, budget: dict) -> str:
+    run_dir = pixelcnn_run_dir(store, codes, out, config, budget)
+    shown = ("epoch", "loss", "val_accuracy", "val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact")
+    path = train_pixelcnn(store, codes, run_dir, PixelCNNConfig(**config), TrainBudget(**budget), on_epoch=_show(shown))
     return str(path)
 
 
@@ -70,11 +105,22 @@ def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default"
     return path
 
 
+@flow(name="train-pixelcnn", log_prints=True)
+def train_pixelcnn_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
+                        budget: dict | None = None, overrides: dict | None = None) -> str:  # fmt: skip
+    """Train the PixelCNN prior preset `model` on the store's `codes_<model>` (made by the VQ-VAE flow)."""
+    config = PixelCNNConfig(**PIXELCNN_PRESETS[model].model_copy(update=overrides or {}).model_dump())
+    path = train_pixelcnn_task(store, f"codes_{model}", out, config.model_dump(),
+                               TrainBudget(**(budget or {})).model_dump())  # fmt: skip
+    print(f"checkpoint: {path}")
+    return path
+
+
 def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m flows.train", description=__doc__)
-    parser.add_argument("stage", choices=["vqvae"], help="which stage to train")
+    parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
     parser.add_argument("--store", default="datasets/frames.zarr", help="frames store from flows.build_datasets")
-    parser.add_argument("--model", default="default", choices=sorted(PRESETS), help="configuration preset")
+    parser.add_argument("--model", default="default", choices=["default", "paper"], help="configuration preset")
     parser.add_argument("--out", default="datasets/checkpoints", help="folder for training runs")
     parser.add_argument("--epochs", type=int, default=TrainBudget().epochs)
     parser.add_argument("--steps-per-epoch", type=int, default=TrainBudget().steps_per_epoch)
@@ -86,12 +132,19 @@ def main(argv: list[str] | None = None) -> str:
         overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
         budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
                              threads=args.threads).model_dump()  # fmt: skip
-        VQVAEConfig(**{**PRESETS[args.model].model_dump(), **overrides})
+        if args.stage == "vqvae":
+            VQVAEConfig(**{**PRESETS[args.model].model_dump(), **overrides})
+        else:
+            PixelCNNConfig(**{**PIXELCNN_PRESETS[args.model].model_dump(), **overrides})
         if not Path(args.store).exists():
             raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
+        if args.stage == "pixelcnn" and f"codes_{args.model}" not in zarr.open_group(args.store, mode="r"):
+            raise FileNotFoundError(f"{args.store}: no codes_{args.model}; train the VQ-VAE first "
+                                    f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
     except (ConfigError, ValueError, FileNotFoundError) as error:
         parser.error(str(error))
-    return train_vqvae_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides)
+    train_flow = train_vqvae_flow if args.stage == "vqvae" else train_pixelcnn_flow
+    return train_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides)
 
 
 if __name__ == "__main__":

@@ -65,3 +65,35 @@ def test_config_errors():
         PixelCNNConfig(layers=1)
     with pytest.raises(ValueError, match="kernel must be odd"):
         ConditionalPixelCNN(PixelCNNConfig(kernel=4))
+
+
+def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_logs):
+    import numpy as np
+
+    from dynplan.data.codes import build_codes
+    from dynplan.data.store import build_frame_store_from_logs, list_logs
+    from dynplan.models.vqvae import VQVAEConfig
+    from dynplan.training.loop import TrainBudget
+    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint, train_pixelcnn
+    from dynplan.training.vqvae import train_vqvae
+
+    store = tmp_path / "frames.zarr"
+    build_frame_store_from_logs(store, list_logs(recorded_logs))
+    tokenizer = VQVAEConfig(name="tiny", channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16,
+                            likelihood="categorical", ema=True, restart_dead=True, batch_size=8)  # fmt: skip
+    vq = train_vqvae(store, tmp_path / "vq", tokenizer, TrainBudget(epochs=2, steps_per_epoch=20, val_frames=50,
+                                                                    threads=1))  # fmt: skip
+    build_codes(store, vq, "tiny")
+    config = SMALL.model_copy(update={"batch_size": 16, "learning_rate": 3e-3})
+    path = train_pixelcnn(store, "codes_tiny", tmp_path / "prior", config,
+                          TrainBudget(epochs=3, steps_per_epoch=25, val_frames=32, threads=1))  # fmt: skip
+    history = torch.load(path, weights_only=False)["history"]
+    assert history[-1]["loss"] < 0.8 * history[0]["loss"]
+    assert history[-1]["val_loss"] < history[0]["val_loss"]
+    assert {"val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact", "windows_seen"} <= set(history[-1])
+    assert np.isfinite(history[-1]["val_loss"])
+    model = load_pixelcnn_checkpoint(path)
+    assert model.generate_naive(torch.zeros(1, 4, 6, 6, dtype=torch.long)).shape == (1, 6, 6)
+    wrong_k = SMALL.model_copy(update={"codebook_size": 32})
+    with pytest.raises(ValueError, match="holds codes of K=16"):
+        train_pixelcnn(store, "codes_tiny", tmp_path / "other", wrong_k, TrainBudget(epochs=1, steps_per_epoch=1))

@@ -1,0 +1,105 @@
+"""Train the conditional PixelCNN prior on a Z-code array: 5-code-grid windows, 4 of context + 1 target.
+
+Runs in the shared loop (`training/loop.py`): resumable, a checkpoint and a metrics row per epoch. After each
+epoch it scores a fixed set of validation windows: teacher-forced code accuracy, and — decoding its greedy
+prediction with the VQ-VAE that made the codes — the next frame's pixel errors against the true frame.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+import zarr
+
+from dynplan.data.datasets import CONTEXT, WindowDataset
+from dynplan.models.metrics import frame_errors
+from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.training import checkpoint, loop
+from dynplan.training.loop import TrainBudget
+from dynplan.training.vqvae import load_vqvae_checkpoint
+
+KIND = "pixelcnn"
+#: Part of a training run's cache key; bump it when a change would change what training produces.
+CODE_VERSION = "pixelcnn-1"
+
+
+def _windows(dataset: WindowDataset) -> np.ndarray:
+    """All of a split's code grids in memory: (E, T, h, w) int64."""
+    return np.stack([dataset.array[int(e)] for e in dataset.episodes]).astype(np.int64)
+
+
+def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathLike, config: PixelCNNConfig,
+                   budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None) -> Path:  # fmt: skip
+    """Train (or resume) the prior of the code array `codes` (e.g. "codes_default") of `store` in `out_dir`."""
+    store, out_dir = str(store), Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done = loop.finished(out_dir, KIND, config.model_dump(), budget.epochs)
+    if done is not None:
+        return done
+    if budget.threads:
+        torch.set_num_threads(budget.threads)
+    group = zarr.open_group(store, mode="r")
+    tokenizer = load_vqvae_checkpoint(group[codes].attrs["checkpoint"])
+    if tokenizer.config.codebook_size != config.codebook_size:
+        raise ValueError(f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
+                         f"for codebook_size={config.codebook_size}")  # fmt: skip
+    torch.manual_seed(budget.seed)
+    model = ConditionalPixelCNN(config)
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    train_set = WindowDataset(store, "train", array=codes)
+    if len(train_set.episodes) == 0:
+        train_set = WindowDataset(store, "all", array=codes)
+    grids = _windows(train_set)
+    E, T = grids.shape[:2]
+    val_context, val_target, val_frames = _validation(store, codes, budget.val_frames)
+
+    def step(generator: torch.Generator) -> dict[str, float]:
+        e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
+        s = torch.randint(0, T - CONTEXT, (config.batch_size,), generator=generator).numpy()
+        window = grids[e[:, None], s[:, None] + np.arange(CONTEXT + 1)]  # (B, 5, h, w)
+        out = model(torch.from_numpy(window[:, :CONTEXT]), torch.from_numpy(window[:, CONTEXT]))
+        optimiser.zero_grad(set_to_none=True)
+        out.loss.backward()
+        optimiser.step()
+        return {"loss": out.loss.item(), "accuracy": out.accuracy.item()}
+
+    def evaluate() -> dict[str, float]:
+        model.eval()
+        with torch.inference_mode():
+            out = model(val_context, val_target)
+            predicted = model.generate_naive(val_context[:256])
+            frames = tokenizer.decode(predicted).numpy()
+        model.train()
+        errors = frame_errors(val_frames[: len(frames)], frames)
+        return {"val_loss": out.loss.item(), "val_accuracy": out.accuracy.item(),
+                "val_greedy_grid_exact": float((predicted == val_target[:256]).all(dim=(1, 2)).float().mean()),
+                **{f"val_next_{k}": v for k, v in errors.items()}}  # fmt: skip
+
+    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
+                       unit="windows")  # fmt: skip
+    return loop.train(out_dir, stage, budget, on_epoch)
+
+
+def _validation(store: str, codes: str, n: int) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+    """A fixed set of validation windows (evenly spread) and the true frames of their targets."""
+    val = WindowDataset(store, "validation", array=codes)
+    if len(val.episodes) == 0:
+        val = WindowDataset(store, "all", array=codes)
+    picks = np.linspace(0, len(val) - 1, min(n, len(val))).astype(int)
+    contexts, targets = zip(*(val[int(i)] for i in picks), strict=True)
+    frames_array = zarr.open_group(store, mode="r")["frames"]
+    frames = np.stack([frames_array[int(val.episodes[i // val.per_episode]), i % val.per_episode + CONTEXT]
+                       for i in picks])  # fmt: skip
+    return torch.stack(contexts).long(), torch.stack(targets).long(), frames
+
+
+def load_pixelcnn_checkpoint(path: str | os.PathLike, config: PixelCNNConfig | None = None) -> ConditionalPixelCNN:
+    """A PixelCNN prior from a checkpoint (final or latest); with `config`, it must be the one trained."""
+    state = checkpoint.load(path, KIND, None if config is None else config.model_dump())
+    model = ConditionalPixelCNN(PixelCNNConfig(**state["config"]))
+    model.load_state_dict(state["model"])
+    return model.eval()
