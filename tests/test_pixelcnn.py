@@ -97,3 +97,20 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     wrong_k = SMALL.model_copy(update={"codebook_size": 32})
     with pytest.raises(ValueError, match="holds codes of K=16"):
         train_pixelcnn(store, "codes_tiny", tmp_path / "other", wrong_k, TrainBudget(epochs=1, steps_per_epoch=1))
+
+
+@pytest.mark.parametrize(("seed", "K", "grid", "batch"), [(0, 16, 6, 1), (1, 64, 6, 3), (2, 32, 12, 2), (3, 16, 5, 1)])
+def test_fast_generation_equals_the_naive_reference(seed, K, grid, batch):
+    from dynplan.models.generation import generate_fast
+
+    torch.manual_seed(seed)
+    model = ConditionalPixelCNN(SMALL.model_copy(update={"codebook_size": K})).eval()
+    for p in model.parameters():  # sharper distributions than at initialisation, so that choices vary
+        p.data.mul_(3.0)
+    context = torch.randint(0, K, (batch, 4, grid, grid))
+    greedy = generate_fast(model, context)
+    assert torch.equal(greedy, model.generate_naive(context))
+    assert len(greedy.unique()) > 1
+    fast = generate_fast(model, context, temperature=1.0, generator=torch.Generator().manual_seed(seed))
+    naive = model.generate_naive(context, temperature=1.0, generator=torch.Generator().manual_seed(seed))
+    assert torch.equal(fast, naive)

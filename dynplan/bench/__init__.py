@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from dynplan.bench.data import bench_data
+from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.vqvae import bench_vqvae
 from dynplan.bench.world import bench_world
@@ -22,6 +23,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "data": bench_data,
     "mcts": bench_mcts,
     "vqvae": bench_vqvae,
+    "generation": bench_generation,
 }
 
 __all__ = ["BENCHMARKS", "Results"]
