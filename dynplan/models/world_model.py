@@ -1,0 +1,105 @@
+"""The learned forward model: VQ-VAE + conditional PixelCNN behind the planner's seam (SPEC §2).
+
+Given the last four observed frames it encodes them, chains the prior k steps ahead (each predicted grid joins
+the context), and decodes the k grids. Variants of the paper's Table 1:
+
+* *Mid* (`samples=0`): the decoder's mid-point frames;
+* *N samples*: also N samples from the decoder's likelihood; obstacles are the pixel-wise union over the
+  mid-point and the samples (conservative: the largest obstacle value wherever any of them shows one), and the
+  goal is drawn at the median of the goal positions found in them.
+
+Code grids are chosen greedily (argmax) as in the reference; `code_temperature > 0` samples them instead —
+stochastic futures, an option beyond the paper.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.models.generation import generate_fast
+from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.vqvae import VQVAE
+from dynplan.planning.forward import Prediction, goal_centres
+
+
+def merge_samples(mid: np.ndarray, samples: np.ndarray) -> np.ndarray:
+    """mid (k, H, W) and samples (n, k, H, W) uint8 → the conservative frames (k, H, W) the planner sees."""
+    views = np.concatenate([mid[None], samples])  # (n + 1, k, H, W)
+    obstacles = np.where((views != FREE) & (views != GOAL_VALUE), views, 0).max(axis=0)
+    merged = np.zeros_like(mid)
+    k, H, W = mid.shape
+    centres = np.stack([goal_centres(view) for view in views])  # (n + 1, k, 2), NaN where no goal
+    for t in range(k):
+        found = centres[:, t][~np.isnan(centres[:, t, 0])]
+        if len(found):
+            # The block's centre is its lower-left pixel + 0.5: rounding (centre − 0.5) is flooring the centre.
+            y, x = np.floor(np.median(found, axis=0)).astype(int)
+            y, x = min(max(y, 0), H - 2), min(max(x, 0), W - 2)
+            merged[t, y : y + 2, x : x + 2] = GOAL_VALUE
+    return np.where(obstacles > 0, obstacles, merged)
+
+
+class LearnedWorldModel:
+    """Forward model from a trained tokenizer and prior. `predict` takes the observed frames (at least the
+    last 4) and returns uint8 (k, H, W) frames as the planner sees them."""
+
+    def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, code_temperature: float = 0.0,
+                 seed: int = 0):  # fmt: skip
+        if tokenizer.config.codebook_size != prior.config.codebook_size:
+            raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
+                             f"{tokenizer.config.codebook_size}")  # fmt: skip
+        if samples < 0:
+            raise ValueError(f"samples must be >= 0, got {samples}")
+        self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
+        self.samples, self.code_temperature = samples, code_temperature
+        self.generator = torch.Generator().manual_seed(seed)
+        self.name = f"model(samples={samples})"
+        self.context = prior.config.context
+
+    @torch.inference_mode()
+    def predict_codes(self, observed: np.ndarray, k: int) -> torch.Tensor:
+        """(k, h, w) code grids of frames t+1 … t+k from the last `context` observed frames."""
+        if len(observed) < self.context:
+            raise ValueError(f"the model needs the last {self.context} frames, got {len(observed)}")
+        context = self.tokenizer.encode(torch.from_numpy(np.ascontiguousarray(observed[-self.context :])))[None]
+        grids = []
+        for _ in range(k):
+            grid = generate_fast(self.prior, context, self.code_temperature, self.generator)
+            grids.append(grid[0])
+            context = torch.cat([context[:, 1:], grid[:, None]], dim=1)
+        return torch.stack(grids)
+
+    @torch.inference_mode()
+    def predict(self, observed: np.ndarray, k: int, samples: int | None = None) -> Prediction:
+        """Frames t+1 … t+k (mid-point, or merged over `samples` decoder samples; default: the model's)."""
+        samples = self.samples if samples is None else samples
+        codes = self.predict_codes(observed, k)
+        mid = self.tokenizer.decode(codes).numpy()
+        if samples:
+            mid = merge_samples(mid, self.tokenizer.decode_samples(codes, samples, self.generator).numpy())
+        return Prediction.from_frames(mid)
+
+
+def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0,
+                     seed: int = 0) -> LearnedWorldModel:  # fmt: skip
+    """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
+    pretrained checkpoints of the configuration `model` ("default" or "paper")."""
+    from dynplan.models import pretrained_path
+    from dynplan.training.checkpoint import CheckpointError
+    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
+    from dynplan.training.vqvae import load_vqvae_checkpoint
+
+    if path is None:
+        paths = pretrained_path("vqvae", model), pretrained_path("pixelcnn", model)
+    else:
+        paths = Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt"
+    missing = [str(p) for p in paths if not p.exists()]
+    if missing:
+        raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
+                              f"`python -m flows.train vqvae|pixelcnn --model {model}`")  # fmt: skip
+    return LearnedWorldModel(load_vqvae_checkpoint(paths[0]), load_pixelcnn_checkpoint(paths[1]), samples, seed=seed)

@@ -1,0 +1,68 @@
+"""The learned forward model: merging decoder samples, predicting through the planner's seam, loading."""
+
+import numpy as np
+import pytest
+import torch
+
+from dynplan.env import GOAL_VALUE, RoadConfig, generate_world
+from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.vqvae import VQVAE, VQVAEConfig
+from dynplan.models.world_model import LearnedWorldModel, load_world_model, merge_samples
+from dynplan.planning.episode import run_episode
+from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+from dynplan.training.checkpoint import CheckpointError
+
+
+def test_merge_takes_the_union_of_obstacles_and_the_median_goal():
+    mid = np.zeros((1, 12, 12), np.uint8)
+    samples = np.zeros((3, 1, 12, 12), np.uint8)
+    mid[0, 2, 3] = 144
+    samples[0, 0, 5, 5] = 45
+    samples[1, 0, 2, 3] = 100
+    for i, (y, x) in enumerate([(8, 8), (9, 9), (8, 8)]):
+        samples[i, 0, y : y + 2, x : x + 2] = GOAL_VALUE
+    mid[0, 8:10, 8:10] = GOAL_VALUE
+    merged = merge_samples(mid, samples)[0]
+    assert merged[2, 3] == 144 and merged[5, 5] == 45  # any obstacle anywhere, at the largest value seen
+    goal = np.argwhere(merged == GOAL_VALUE)
+    assert goal.min(axis=0).tolist() == [8, 8] and len(goal) == 4  # the median of the four blocks seen
+    assert not merge_samples(np.zeros((2, 12, 12), np.uint8), np.zeros((1, 2, 12, 12), np.uint8)).any()
+
+
+@pytest.fixture(scope="module")
+def tiny_model():
+    torch.manual_seed(0)
+    tokenizer = VQVAE(VQVAEConfig(channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16,
+                                  likelihood="categorical"))  # fmt: skip
+    prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=3, condition_channels=8))
+    return tokenizer, prior
+
+
+@pytest.mark.parametrize("samples", [0, 5])
+def test_predicts_k_frames_from_the_last_four(tiny_model, samples):
+    tokenizer, prior = tiny_model
+    model = LearnedWorldModel(tokenizer, prior, samples=samples)
+    frames = generate_world(RoadConfig(), 0).frames
+    prediction = model.predict(frames[:9], 3)
+    assert prediction.frames.shape == (3, 48, 48) and prediction.frames.dtype == np.uint8
+    assert prediction.goal.shape == (3, 2)
+    same = model.predict(frames[5:9], 3, samples=0)  # only the last four frames matter
+    np.testing.assert_array_equal(same.frames, model.predict(frames[:9], 3, samples=0).frames)
+    with pytest.raises(ValueError, match="needs the last 4 frames"):
+        model.predict(frames[:2], 1)
+
+
+def test_plans_an_episode_through_the_seam(tiny_model):
+    tokenizer, prior = tiny_model
+    world = generate_world(RoadConfig(), 3)
+    planner = MCTSPlanner(MCTSConfig(rollout_steps=2, playouts=10), 1.0, 203)
+    result = run_episode(world, planner, LearnedWorldModel(tokenizer, prior, samples=2), 1.0, 2)
+    assert result.outcome in {"goal", "death", "timeout"} and result.steps == len(result.decision_ms)
+
+
+def test_mismatched_parts_and_missing_checkpoints(tiny_model, tmp_path):
+    tokenizer, _ = tiny_model
+    with pytest.raises(ValueError, match="the prior predicts 32 codes; the tokenizer has 16"):
+        LearnedWorldModel(tokenizer, ConditionalPixelCNN(PixelCNNConfig(codebook_size=32, channels=8, layers=2)))
+    with pytest.raises(CheckpointError, match="no world model checkpoints"):
+        load_world_model(tmp_path)
