@@ -23,6 +23,7 @@ from dynplan.evaluation.protocol import (
     EVAL_SEED_START,
     MODELS,
     ROLLOUT_STEPS,
+    WORLD_MODELS,
     Case,
     cases,
     pending,
@@ -45,12 +46,13 @@ def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int
 def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[float] | None = None,
                      rollout_steps: list[int] | None = None, episodes: int = EVAL_EPISODES,
                      playouts: int = 100, log_dir: str = "datasets/eval_logs",
-                     results_dir: str = "datasets/results", command: str = DEFAULT_COMMAND) -> list[dict]:  # fmt: skip
+                     results_dir: str = "datasets/results", command: str = DEFAULT_COMMAND,
+                     models: list[str] | None = None) -> list[dict]:  # fmt: skip
     """Play the missing cases and write the aggregated table."""
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=EVAL_SEED_START)
     todo = pending(cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
-                         episodes), results_dir)  # fmt: skip
+                         episodes, models=tuple(models or ["default"])), results_dir)  # fmt: skip
     print(f"{len(todo)} episodes to play")
     futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
                                      unmapped(playouts))  # fmt: skip
@@ -65,6 +67,13 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(prog="python -m flows.evaluate", description=__doc__)
     parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=sorted(MODELS))
+    parser.add_argument(
+        "--models",
+        nargs="+",
+        default=["default"],
+        choices=WORLD_MODELS,
+        help="world-model configurations for the learned techniques (mid, samples5, samples10)",
+    )
     parser.add_argument("--agent-speeds", nargs="+", type=float, default=list(AGENT_SPEEDS))
     parser.add_argument("--rollout-steps", nargs="+", type=int, default=list(ROLLOUT_STEPS))
     parser.add_argument("--episodes", type=int, default=EVAL_EPISODES, help="evaluation episodes (default 100)")
@@ -84,7 +93,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     rows = evaluate_planner.with_options(task_runner=task_runner(dask_address(args.dask_address)))(
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
-        command=command,
+        command=command, models=args.models,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))

@@ -169,3 +169,38 @@ def test_the_search_never_looks_past_the_timeout_frame(eval_logs):
     assert all(t + k <= 202 for t, k in asked)
     if result.outcome == "timeout":
         assert asked[-1] == (201, 1)
+
+
+def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch):
+    import torch
+
+    import dynplan.evaluation.protocol as protocol
+    from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+    from dynplan.models.vqvae import VQVAE, VQVAEConfig
+
+    torch.manual_seed(0)
+    tokenizer = VQVAE(VQVAEConfig(channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16,
+                                  likelihood="categorical"))  # fmt: skip
+    prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=2, condition_channels=8))
+    monkeypatch.setattr(protocol, "_learned_parts", lambda model: (tokenizer, prior))
+    all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
+    assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
+    records = [run_case(c, eval_logs, tmp_path, playouts=5) for c in all_cases]
+    assert all_cases[0].result_path(tmp_path).parent.parent.name == "samples5-default"
+    rows = aggregate(records)
+    assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}
+    assert "| 2× samples5 [default] (ours) | " in render_markdown(rows)
+    with pytest.raises(ValueError, match="needs a world model"):
+        Case("mid", 1.0, 3, 0)
+    with pytest.raises(ValueError, match="does not use a world model"):
+        Case("oracle", 1.0, 3, 0, "default")
+
+
+def test_replay_with_the_learned_model_names_missing_checkpoints(eval_logs):
+    from dynplan.models import pretrained_path
+    from dynplan.training.checkpoint import CheckpointError
+
+    if pretrained_path("pixelcnn", "paper").exists():
+        pytest.skip("pretrained world model present")
+    with pytest.raises(CheckpointError, match="no world model checkpoints"):
+        replay(log_path(eval_logs, EVAL_SEED_START), "model", model="paper")

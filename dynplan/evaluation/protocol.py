@@ -7,6 +7,7 @@ their planner and forward model from the recorded world; the learned models regi
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import time
@@ -31,11 +32,36 @@ EVAL_EPISODES = 100
 AGENT_SPEEDS = (1.0, 0.5)
 ROLLOUT_STEPS = (1, 3, 5, 10)
 
-#: technique → factory of its forward model for a recorded world (None: the agent needs no model).
-MODELS: dict[str, Callable[[World], ForwardModel | None]] = {
-    "oracle": OracleModel,
-    "zero": lambda world: ZeroModel(),
-    "random": lambda world: None,
+#: Learned techniques (SPEC §2 variants) and the decoder samples each merges.
+LEARNED = {"mid": 0, "samples5": 5, "samples10": 10}
+#: World-model configurations a learned technique can use.
+WORLD_MODELS = ("default", "paper")
+
+
+@functools.cache
+def _learned_parts(model: str):
+    from dynplan.models.world_model import load_world_model
+
+    world_model = load_world_model(model=model)
+    return world_model.tokenizer, world_model.prior
+
+
+def learned_model(model: str, samples: int, seed: int) -> ForwardModel:
+    """The learned forward model of configuration `model` from the committed checkpoints (loaded once)."""
+    from dynplan.models.world_model import LearnedWorldModel
+
+    return LearnedWorldModel(*_learned_parts(model), samples=samples, seed=seed)
+
+
+#: technique → factory of its forward model for (recorded world, case) (None: the agent needs no model).
+MODELS: dict[str, Callable[[World, Case], ForwardModel | None]] = {
+    "oracle": lambda world, case: OracleModel(world),
+    "zero": lambda world, case: ZeroModel(),
+    "random": lambda world, case: None,
+    **{
+        name: (lambda world, case, n=n: learned_model(case.model, n, case.planner_seed()))
+        for name, n in LEARNED.items()
+    },
 }
 
 
@@ -47,15 +73,22 @@ class Case:
     agent_speed: float
     rollout_steps: int | None
     seed: int
+    model: str | None = None  # the world-model configuration of a learned technique ("default" or "paper")
 
     def __post_init__(self) -> None:
         if self.technique not in MODELS:
             raise ValueError(f"unknown technique {self.technique!r}; known: {sorted(MODELS)}")
+        if (self.technique in LEARNED) != (self.model is not None):
+            uses = "needs a world model" if self.technique in LEARNED else "does not use a world model"
+            raise ValueError(f"technique {self.technique!r} {uses} (got model={self.model!r})")
+        if self.model is not None and self.model not in WORLD_MODELS:
+            raise ValueError(f"model must be one of {WORLD_MODELS}, got {self.model!r}")
 
     @property
     def group(self) -> str:
         k = "none" if self.rollout_steps is None else self.rollout_steps
-        return f"{self.technique}/speed{self.agent_speed:g}_k{k}"
+        technique = self.technique if self.model is None else f"{self.technique}-{self.model}"
+        return f"{technique}/speed{self.agent_speed:g}_k{k}"
 
     def result_path(self, results_dir: str | os.PathLike) -> Path:
         return Path(results_dir) / "episodes" / self.group / f"seed{self.seed}.json"
@@ -67,14 +100,16 @@ class Case:
 
 def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
           rollout_steps: tuple[int, ...] = ROLLOUT_STEPS, episodes: int = EVAL_EPISODES,
-          first_seed: int = EVAL_SEED_START) -> list[Case]:  # fmt: skip
-    """Every case of the table: the random agent once per speed, searching techniques once per horizon."""
+          first_seed: int = EVAL_SEED_START, models: tuple[str, ...] = ("default",)) -> list[Case]:  # fmt: skip
+    """Every case of the table: the random agent once per speed, searching techniques once per horizon, learned
+    techniques once per world-model configuration in `models`."""
     out = []
     for technique in techniques:
         ks: tuple[int | None, ...] = (None,) if technique == "random" else rollout_steps
-        for speed in speeds:
-            for k in ks:
-                out += [Case(technique, speed, k, first_seed + i) for i in range(episodes)]
+        for model in models if technique in LEARNED else (None,):
+            for speed in speeds:
+                for k in ks:
+                    out += [Case(technique, speed, k, first_seed + i, model) for i in range(episodes)]
     return out
 
 
@@ -96,7 +131,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
     if log.seed != case.seed:
         raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {case.seed}")
     world = log.world()
-    model = MODELS[case.technique](world)
+    model = MODELS[case.technique](world, case)
     if case.rollout_steps is None:
         planner = RandomPlanner(case.planner_seed())
     else:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from dynplan.env.config import RoadConfig
-from dynplan.evaluation.protocol import MODELS
+from dynplan.evaluation.protocol import MODELS, WORLD_MODELS, learned_model
 from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
 from dynplan.logs.writer import write_episode_log
 from dynplan.planning.episode import run_episode
@@ -22,12 +22,20 @@ from dynplan.planning.forward import Prediction
 from dynplan.planning.mcts import Decision, MCTSConfig, MCTSPlanner, RandomPlanner
 from dynplan.render import colorize, error_image, side_by_side, write_gif
 
+#: What `--planner` accepts: the oracle, zero and random baselines, or the learned world model.
+PLANNERS = ("oracle", "zero", "random", "model")
 
-def prepare(log: str | os.PathLike, planner: str, agent_speed: float, rollout_steps: int,
-            playouts: int) -> tuple[EpisodeLog, RoadConfig, MCTSConfig]:  # fmt: skip
-    """Check a replay's inputs before running it: the log (LogError), the options (ConfigError/ValueError)."""
-    if planner not in MODELS:
-        raise ValueError(f"planner must be one of {sorted(MODELS)}, got {planner!r}")
+
+def prepare(log: str | os.PathLike, planner: str, agent_speed: float, rollout_steps: int, playouts: int,
+            model: str = "default", samples: int = 0) -> tuple[EpisodeLog, RoadConfig, MCTSConfig]:  # fmt: skip
+    """Check a replay's inputs before running it: the log (LogError), the options (ConfigError/ValueError), and
+    for the learned model its checkpoints (CheckpointError)."""
+    if planner not in PLANNERS:
+        raise ValueError(f"planner must be one of {list(PLANNERS)}, got {planner!r}")
+    if planner == "model":
+        if model not in WORLD_MODELS or samples < 0:
+            raise ValueError(f"model must be one of {list(WORLD_MODELS)} and samples >= 0, got {model!r}, {samples}")
+        learned_model(model, samples, 0)  # loads (and caches) the checkpoints, or says which are missing
     mcts = MCTSConfig(rollout_steps=rollout_steps, playouts=playouts)
     config = RoadConfig(agent_speed=agent_speed)  # validates the speed before the log is read
     recorded = read_episode_log(log)
@@ -58,11 +66,12 @@ class ReplayResult:
 
 def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float = 1.0, rollout_steps: int = 3,
            playouts: int = 100, out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None,
-           seed: int = 0) -> ReplayResult:  # fmt: skip
-    """Run `planner` ("oracle", "zero" or "random") on the episode recorded in `log`."""
-    recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts)
+           seed: int = 0, model: str = "default", samples: int = 0) -> ReplayResult:  # fmt: skip
+    """Run `planner` ("oracle", "zero", "random", or "model": the learned world model `model` merging `samples`
+    decoder samples) on the episode recorded in `log`."""
+    recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts, model, samples)
     world = recorded.world()
-    model = MODELS[planner](world)
+    forward = learned_model(model, samples, seed) if planner == "model" else MODELS[planner](world, None)
     agent = RandomPlanner(seed) if planner == "random" else MCTSPlanner(mcts, agent_speed, config.max_steps, seed)
     imagined: dict[int, np.ndarray] = {}
     panels: list[np.ndarray] = []
@@ -73,7 +82,7 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
         if gif is not None:
             panels.append(_gif_panel(world.frames, t, position, prediction, rollout_steps))
 
-    result = run_episode(world, agent, model, agent_speed, rollout_steps, on_decision=record)
+    result = run_episode(world, agent, forward, agent_speed, rollout_steps, on_decision=record)
     if out is not None:
         write_episode_log(out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None)
     if gif is not None:

@@ -24,16 +24,16 @@ def load_results(results_dir: str | os.PathLike) -> list[dict]:
 def _sort_key(row: dict) -> tuple:
     technique = row["technique"]
     rank = TECHNIQUE_ORDER.index(technique) if technique in TECHNIQUE_ORDER else len(TECHNIQUE_ORDER)
-    return (-row["agent_speed"], rank, technique, row["rollout_steps"] or 0)
+    return (-row["agent_speed"], rank, technique, row.get("model") or "", row["rollout_steps"] or 0)
 
 
 def aggregate(results: list[dict]) -> list[dict]:
     """One row per (technique, agent speed, rollout steps)."""
     groups: dict[tuple, list[dict]] = defaultdict(list)
     for r in results:
-        groups[(r["technique"], r["agent_speed"], r["rollout_steps"])].append(r)
+        groups[(r["technique"], r.get("model"), r["agent_speed"], r["rollout_steps"])].append(r)
     rows = []
-    for (technique, speed, k), episodes in groups.items():
+    for (technique, model, speed, k), episodes in groups.items():
         playouts = {e.get("playouts") for e in episodes}
         if len(playouts) > 1:
             raise ValueError(f"results of {technique} at speed {speed}, k={k} mix playouts {sorted(playouts)}")
@@ -42,6 +42,7 @@ def aggregate(results: list[dict]) -> list[dict]:
         times = np.concatenate([np.asarray(e["decision_ms"], dtype=np.float64) for e in episodes])
         rows.append({
             "technique": technique,
+            "model": model,
             "agent_speed": speed,
             "rollout_steps": k,
             "episodes": len(episodes),
@@ -66,19 +67,19 @@ def _cell(g, t, d, s_mean, s_std) -> str:
 def render_markdown(rows: list[dict]) -> str:
     """The table in the paper's layout: one line per technique and speed, a cell per rollout length."""
     ks = sorted({r["rollout_steps"] for r in rows if r["rollout_steps"] is not None})
-    by_key = {(r["technique"], r["agent_speed"], r["rollout_steps"]): r for r in rows}
+    by_key = {(r["technique"], r.get("model"), r["agent_speed"], r["rollout_steps"]): r for r in rows}
     header = "| technique | " + " | ".join(f"k = {k}: G/T/D, S" for k in ks) + " | decision ms (median) |"
     lines = [header, "|" + " --- |" * (len(ks) + 2)]
     seen = []
     for r in rows:
-        key = (r["technique"], r["agent_speed"])
+        key = (r["technique"], r.get("model"), r["agent_speed"])
         if key in seen:
             continue
         seen.append(key)
-        technique, speed = key
-        label = f"{speed * 2:g}× {technique}"
+        technique, model, speed = key
+        label = f"{speed * 2:g}× {technique}" + (f" [{model}]" if model else "")
         if technique == "random":
-            r0 = by_key[(technique, speed, None)]
+            r0 = by_key[(technique, None, speed, None)]
             paper = PAPER_RANDOM_GOALS.get(speed)
             note = f" (paper: {paper} goals)" if paper is not None else ""
             cell = _cell(r0["G"], r0["T"], r0["D"], r0["S_mean"], r0["S_std"]) + note
@@ -87,7 +88,7 @@ def render_markdown(rows: list[dict]) -> str:
             continue
         cells, paper_cells, times = [], [], []
         for k in ks:
-            row = by_key.get((technique, speed, k))
+            row = by_key.get((technique, model, speed, k))
             cells.append(_cell(row["G"], row["T"], row["D"], row["S_mean"], row["S_std"]) if row else "")
             times.append(f"{row['decision_ms_median']}" if row else "")
             paper = PAPER_TABLE1.get((technique, speed, k))
