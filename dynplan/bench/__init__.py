@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from dynplan.bench.data import bench_data
+from dynplan.bench.decision import bench_decision
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.vqvae import bench_vqvae
@@ -24,6 +25,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "mcts": bench_mcts,
     "vqvae": bench_vqvae,
     "generation": bench_generation,
+    "decision": bench_decision,
 }
 
 __all__ = ["BENCHMARKS", "Results"]

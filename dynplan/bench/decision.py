@@ -1,0 +1,39 @@
+"""`decision`: milliseconds per planning decision with the learned world model (5 decoder samples, k = 3,
+100 playouts: prediction + search) — the paper's best agent took 1.7 s per decision on a GPU. Timing does not
+depend on the weights, so untrained models of each preset's size stand in until trained ones are committed."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from dynplan.env.config import RoadConfig
+from dynplan.env.road import generate_world
+from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
+from dynplan.models.vqvae import PRESETS, VQVAE
+from dynplan.models.world_model import LearnedWorldModel
+from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+
+PAPER_GPU_MS = 1700.0
+
+
+def bench_decision(decisions: int = 30, threads: int = 2) -> dict[str, dict[str, float]]:
+    """Median over `decisions` decisions along one episode's frames (the agent held at its start)."""
+    torch.set_num_threads(threads)
+    world = generate_world(RoadConfig(), 2_000_000)
+    results = {}
+    for name, case in (("default", "model_samples5_k3"), ("paper", "model_samples5_k3_paper")):
+        torch.manual_seed(0)
+        model = LearnedWorldModel(VQVAE(PRESETS[name]), ConditionalPixelCNN(PIXELCNN_PRESETS[name]), samples=5)
+        planner = MCTSPlanner(MCTSConfig(rollout_steps=3), agent_speed=1.0, max_steps=203)
+        times = []
+        for t in range(4, 5 + decisions):
+            start = time.perf_counter()
+            planner.act(world.agent_start, t, model.predict(world.frames[: t + 1], 3))
+            times.append((time.perf_counter() - start) * 1e3)
+        median = float(np.median(times[1:]))  # the first call compiles
+        results[case] = {"median_ms": round(median, 1), "paper_gpu_ms": PAPER_GPU_MS,
+                         "speedup_vs_paper": round(PAPER_GPU_MS / median, 1), "threads": threads}  # fmt: skip
+    return results
