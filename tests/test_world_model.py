@@ -66,3 +66,26 @@ def test_mismatched_parts_and_missing_checkpoints(tiny_model, tmp_path):
         LearnedWorldModel(tokenizer, ConditionalPixelCNN(PixelCNNConfig(codebook_size=32, channels=8, layers=2)))
     with pytest.raises(CheckpointError, match="no world model checkpoints"):
         load_world_model(tmp_path)
+
+
+def test_prediction_error_curves_and_figure(tiny_model, tmp_path):
+    from dynplan.analysis.prediction import errors_by_horizon, figure1, plot_errors
+    from dynplan.planning.forward import OracleModel
+
+    class Oracle:
+        """The truth as a 'model' of the evaluation episodes: every error must be zero."""
+
+        def predict(self, observed, k):
+            world = generate_world(RoadConfig(), self.seed)
+            return OracleModel(world).predict(observed, k)
+
+    oracle = Oracle()
+    oracle.seed = 1_000_000
+    perfect = errors_by_horizon(oracle, episodes=1, points=3, horizon=4)
+    assert perfect["fn_rate"] == [0.0] * 4 and perfect["fp_rate"] == [0.0] * 4 and perfect["goal_error_px"] == [0.0] * 4
+    tokenizer, prior = tiny_model
+    learned = errors_by_horizon(LearnedWorldModel(tokenizer, prior), episodes=1, points=2, horizon=3)
+    assert len(learned["fn_rate"]) == 3 and learned["decision_points"] == 2
+    plot_errors({"oracle": perfect, "tiny": learned}, tmp_path / "errors.png")
+    figure1(LearnedWorldModel(tokenizer, prior, samples=2), tmp_path / "figure1.png", steps=(1, 2))
+    assert (tmp_path / "errors.png").stat().st_size > 1000 and (tmp_path / "figure1.png").stat().st_size > 1000

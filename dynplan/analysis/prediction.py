@@ -1,0 +1,123 @@
+"""How a forward model's predictions degrade with the horizon (the paper's Figure 1, quantified).
+
+For held-out episodes (the evaluation seeds, never trained on) and decision points spread along each, the
+model predicts 10 frames ahead from the 4 observed; each predicted frame is compared with the truth:
+obstacle false negatives and false positives (as fractions of obstacle and free pixels) and the distance
+between the predicted and the true goal centres. `python -m dynplan.analysis.prediction --model default
+[--samples 5] --plot errors.png --figure figure1.png`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import numpy as np
+
+from dynplan.env.config import RoadConfig
+from dynplan.env.road import generate_world
+from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.models.metrics import frame_errors
+from dynplan.planning.forward import ForwardModel, goal_centres
+
+HORIZON = 10
+
+
+def errors_by_horizon(model: ForwardModel, episodes: int = 10, points: int = 10, horizon: int = HORIZON) -> dict:
+    """Mean false-negative and false-positive rates and goal error (pixels) at each step ahead 1 … horizon."""
+    fn, fp, goal = (np.zeros(horizon) for _ in range(3))
+    goal_counts = np.zeros(horizon)
+    n = 0
+    for e in range(episodes):
+        frames = generate_world(RoadConfig(), EVAL_SEED_START + e).frames
+        for t in np.linspace(4, len(frames) - horizon - 1, points).astype(int):
+            predicted = model.predict(frames[: t + 1], horizon).frames
+            truth = frames[t + 1 : t + 1 + horizon]
+            for h in range(horizon):
+                errors = frame_errors(truth[h : h + 1], predicted[h : h + 1])
+                fn[h] += errors["fn_rate"]
+                fp[h] += errors["fp_rate"]
+            distance = np.linalg.norm(goal_centres(truth) - goal_centres(predicted), axis=1)
+            seen = ~np.isnan(distance)
+            goal[seen] += distance[seen]
+            goal_counts[seen] += 1
+            n += 1
+    return {
+        "steps_ahead": list(range(1, horizon + 1)),
+        "fn_rate": (fn / n).round(5).tolist(),
+        "fp_rate": (fp / n).round(5).tolist(),
+        "goal_error_px": (goal / np.maximum(goal_counts, 1)).round(3).tolist(),
+        "decision_points": n,
+    }
+
+
+def plot_errors(curves: dict[str, dict], path: str | os.PathLike) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    for name, curve in curves.items():
+        for ax, key, title in zip(axes, ("fn_rate", "fp_rate", "goal_error_px"),
+                                  ("obstacle false negatives", "obstacle false positives", "goal error (px)"),
+                                  strict=True):  # fmt: skip
+            ax.plot(curve["steps_ahead"], curve[key], marker="o", label=name)
+            ax.set_title(title)
+            ax.set_xlabel("steps ahead")
+    axes[0].legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def figure1(model: ForwardModel, path: str | os.PathLike, seed: int = EVAL_SEED_START, t: int = 40,
+            steps: tuple[int, ...] = (1, 3, 5, 10)) -> None:  # fmt: skip
+    """The paper's Figure 1: per row a step ahead — the oracle frame, the model's, and their error."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from dynplan.render import colorize, error_image
+
+    frames = generate_world(RoadConfig(), seed).frames
+    predicted = model.predict(frames[: t + 1], max(steps)).frames
+    fig, axes = plt.subplots(len(steps), 3, figsize=(7.5, 2.6 * len(steps)))
+    for row, step in enumerate(steps):
+        truth, guess = frames[t + step], predicted[step - 1]
+        for col, (image, title) in enumerate([(colorize(truth), f"oracle t+{step}"), (colorize(guess), "model"),
+                                              (error_image(truth, guess), "error")]):  # fmt: skip
+            axes[row, col].imshow(image, interpolation="nearest")
+            axes[row, col].set_title(title, fontsize=9)
+            axes[row, col].set_axis_off()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    from dynplan.models.world_model import load_world_model
+
+    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
+    parser.add_argument("--model", default="default", choices=["default", "paper"])
+    parser.add_argument("--samples", type=int, nargs="+", default=[0, 5], help="decoder samples (0: Mid)")
+    parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--plot", help="write the error-against-horizon figure here")
+    parser.add_argument("--figure", help="write a Figure-1-style image here")
+    args = parser.parse_args(argv)
+    curves = {}
+    for samples in args.samples:
+        model = load_world_model(model=args.model, samples=samples)
+        name = f"{args.model}, {'mid' if samples == 0 else f'{samples} samples'}"
+        curves[name] = errors_by_horizon(model, args.episodes)
+        print(json.dumps({name: curves[name]}))
+    if args.plot:
+        plot_errors(curves, args.plot)
+    if args.figure:
+        figure1(load_world_model(model=args.model, samples=max(args.samples)), args.figure)
+
+
+if __name__ == "__main__":
+    main()
