@@ -58,6 +58,18 @@ class Stage:
     unit: str = "frames"
 
 
+def begin(out_dir: Path, kind: str, config: dict, budget: TrainBudget) -> Path | None:
+    """Prepare a run in `out_dir`: return its final checkpoint if it already has the epochs asked for; else set
+    torch's threads and seed — before the stage builds its model, so initialisation is reproducible."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done = finished(out_dir, kind, config, budget.epochs)
+    if done is None:
+        if budget.threads:
+            torch.set_num_threads(budget.threads)
+        torch.manual_seed(budget.seed)
+    return done
+
+
 def finished(out_dir: Path, stage_kind: str, config: dict, epochs: int) -> Path | None:
     """The final checkpoint of a run in `out_dir` if it has at least `epochs` (a config mismatch is an error)."""
     final = out_dir / f"{stage_kind}.pt"

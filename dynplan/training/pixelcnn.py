@@ -36,18 +36,14 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
                    budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None) -> Path:  # fmt: skip
     """Train (or resume) the prior of the code array `codes` (e.g. "codes_default") of `store` in `out_dir`."""
     store, out_dir = str(store), Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    done = loop.finished(out_dir, KIND, config.model_dump(), budget.epochs)
+    done = loop.begin(out_dir, KIND, config.model_dump(), budget)
     if done is not None:
         return done
-    if budget.threads:
-        torch.set_num_threads(budget.threads)
     group = zarr.open_group(store, mode="r")
     tokenizer = load_vqvae_checkpoint(group[codes].attrs["checkpoint"])
     if tokenizer.config.codebook_size != config.codebook_size:
         raise ValueError(f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
                          f"for codebook_size={config.codebook_size}")  # fmt: skip
-    torch.manual_seed(budget.seed)
     model = ConditionalPixelCNN(config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train_set = WindowDataset(store, "train", array=codes)

@@ -94,13 +94,9 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
     rather than silently reused.
     """
     store, out_dir = str(store), Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    done = loop.finished(out_dir, KIND, config.model_dump(), budget.epochs)
+    done = loop.begin(out_dir, KIND, config.model_dump(), budget)
     if done is not None:
         return done
-    if budget.threads:
-        torch.set_num_threads(budget.threads)
-    torch.manual_seed(budget.seed)
     model = VQVAE(config)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train = FrameDataset(store, "train" if len(FrameDataset(store, "train").episodes) else "all")
