@@ -30,9 +30,11 @@ def replay_episode(
     seed: int = 0,
     model: str = "default",
     samples: int = 0,
+    futures: int = 0,
 ) -> dict:
     """Replay one recorded episode through a planner."""
-    result = replay(log, planner, agent_speed, rollout_steps, playouts, out, gif, seed, model, samples).to_dict()
+    result = replay(log, planner, agent_speed, rollout_steps, playouts, out, gif, seed, model, samples, futures)
+    result = result.to_dict()
     print(f"{result['outcome']} after {result['steps']} steps; decision {result['decision_ms_median']:.3f} ms "
           f"(median), {result['decision_ms_mean']:.3f} ms (mean); replay log: {result['out']}")  # fmt: skip
     return result
@@ -49,6 +51,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     parser.add_argument("--model", default="default", choices=WORLD_MODELS, help="learned model configuration")
     parser.add_argument("--samples", type=int, default=0, help="decoder samples merged by the learned model (0: Mid)")
+    parser.add_argument("--futures", type=int, default=0, help="code futures sampled from the prior and merged")
     parser.add_argument("--agent-speed", type=float, default=1.0, help="1.0 (the paper's 2×) or 0.5 (1×)")
     parser.add_argument("--rollout-steps", type=int, default=3, help="search horizon k (default 3)")
     parser.add_argument("--playouts", type=int, default=100, help="MCTS playouts per decision (default 100)")
@@ -61,12 +64,13 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     out = args.out or str(default_outputs(args.log, args.planner))
     try:  # fail fast, with one line, before any flow machinery starts
-        prepare(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, args.model, args.samples)
+        prepare(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, args.model, args.samples,
+                args.futures)  # fmt: skip
     except (LogError, ConfigError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
     result = replay_episode(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, out,
-                            args.gif, args.seed, args.model, args.samples)  # fmt: skip
+                            args.gif, args.seed, args.model, args.samples, args.futures)  # fmt: skip
     if args.json:
         print(json.dumps(result))
     return result

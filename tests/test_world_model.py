@@ -38,10 +38,10 @@ def tiny_model():
     return tokenizer, prior
 
 
-@pytest.mark.parametrize("samples", [0, 5])
-def test_predicts_k_frames_from_the_last_four(tiny_model, samples):
+@pytest.mark.parametrize(("samples", "futures"), [(0, 0), (5, 0), (0, 3), (2, 2)])
+def test_predicts_k_frames_from_the_last_four(tiny_model, samples, futures):
     tokenizer, prior = tiny_model
-    model = LearnedWorldModel(tokenizer, prior, samples=samples)
+    model = LearnedWorldModel(tokenizer, prior, samples=samples, futures=futures)
     frames = generate_world(RoadConfig(), 0).frames
     prediction = model.predict(frames[:9], 3)
     assert prediction.frames.shape == (3, 48, 48) and prediction.frames.dtype == np.uint8
@@ -50,6 +50,17 @@ def test_predicts_k_frames_from_the_last_four(tiny_model, samples):
     np.testing.assert_array_equal(same.frames, model.predict(frames[:9], 3, samples=0).frames)
     with pytest.raises(ValueError, match="needs the last 4 frames"):
         model.predict(frames[:2], 1)
+
+
+def test_sampled_futures_are_merged_conservatively(tiny_model):
+    tokenizer, prior = tiny_model
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    greedy = LearnedWorldModel(tokenizer, prior).predict(frames, 2).frames
+    merged = LearnedWorldModel(tokenizer, prior, futures=4).predict(frames, 2).frames
+    obstacle = (greedy != 0) & (greedy != GOAL_VALUE)
+    assert (merged[obstacle] != 0).all()  # every obstacle of the greedy future is still there
+    codes = LearnedWorldModel(tokenizer, prior, seed=1).predict_codes(frames, 2, futures=4, temperature=1.0)
+    assert codes.shape == (4, 2, 6, 6)
 
 
 def test_plans_an_episode_through_the_seam(tiny_model):

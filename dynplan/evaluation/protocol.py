@@ -32,8 +32,9 @@ EVAL_EPISODES = 100
 AGENT_SPEEDS = (1.0, 0.5)
 ROLLOUT_STEPS = (1, 3, 5, 10)
 
-#: Learned techniques (SPEC §2 variants) and the decoder samples each merges.
-LEARNED = {"mid": 0, "samples5": 5, "samples10": 10}
+#: Learned techniques → (decoder samples, sampled code futures) merged: the paper's Mid, 5 and 10 samples, and,
+#: beyond the paper, 5 futures sampled from the prior itself.
+LEARNED = {"mid": (0, 0), "samples5": (5, 0), "samples10": (10, 0), "futures5": (0, 5)}
 #: World-model configurations a learned technique can use.
 WORLD_MODELS = ("default", "paper")
 
@@ -46,11 +47,11 @@ def _learned_parts(model: str):
     return world_model.tokenizer, world_model.prior
 
 
-def learned_model(model: str, samples: int, seed: int) -> ForwardModel:
+def learned_model(model: str, samples: int, seed: int, futures: int = 0) -> ForwardModel:
     """The learned forward model of configuration `model` from the committed checkpoints (loaded once)."""
     from dynplan.models.world_model import LearnedWorldModel
 
-    return LearnedWorldModel(*_learned_parts(model), samples=samples, seed=seed)
+    return LearnedWorldModel(*_learned_parts(model), samples=samples, futures=futures, seed=seed)
 
 
 #: technique → factory of its forward model for (recorded world, case) (None: the agent needs no model).
@@ -59,8 +60,8 @@ MODELS: dict[str, Callable[[World, Case], ForwardModel | None]] = {
     "zero": lambda world, case: ZeroModel(),
     "random": lambda world, case: None,
     **{
-        name: (lambda world, case, n=n: learned_model(case.model, n, case.planner_seed()))
-        for name, n in LEARNED.items()
+        name: (lambda world, case, n=n, f=f: learned_model(case.model, n, case.planner_seed(), f))
+        for name, (n, f) in LEARNED.items()
     },
 }
 

@@ -8,8 +8,9 @@ the context), and decodes the k grids. Variants of the paper's Table 1:
   mid-point and the samples (conservative: the largest obstacle value wherever any of them shows one), and the
   goal is drawn at the median of the goal positions found in them.
 
-Code grids are chosen greedily (argmax) as in the reference; `code_temperature > 0` samples them instead —
-stochastic futures, an option beyond the paper.
+Code grids are chosen greedily (argmax) as in the reference. Beyond the paper, `futures = N` also samples N
+stochastic futures from the prior itself (codes drawn at temperature 1) and merges their decoded frames with
+the greedy one the same way as decoder samples.
 """
 
 from __future__ import annotations
@@ -48,45 +49,54 @@ class LearnedWorldModel:
     """Forward model from a trained tokenizer and prior. `predict` takes the observed frames (at least the
     last 4) and returns uint8 (k, H, W) frames as the planner sees them."""
 
-    def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, code_temperature: float = 0.0,
+    def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, futures: int = 0,
                  seed: int = 0):  # fmt: skip
         if tokenizer.config.codebook_size != prior.config.codebook_size:
             raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
                              f"{tokenizer.config.codebook_size}")  # fmt: skip
-        if samples < 0:
-            raise ValueError(f"samples must be >= 0, got {samples}")
+        if samples < 0 or futures < 0:
+            raise ValueError(f"samples and futures must be >= 0, got {samples}, {futures}")
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
-        self.samples, self.code_temperature = samples, code_temperature
+        self.samples, self.futures = samples, futures
         self.generator = torch.Generator().manual_seed(seed)
-        self.name = f"model(samples={samples})"
+        self.name = f"model(samples={samples}, futures={futures})"
         self.context = prior.config.context
 
     @torch.inference_mode()
-    def predict_codes(self, observed: np.ndarray, k: int) -> torch.Tensor:
-        """(k, h, w) code grids of frames t+1 … t+k from the last `context` observed frames."""
+    def predict_codes(self, observed: np.ndarray, k: int, futures: int = 1, temperature: float = 0.0) -> torch.Tensor:
+        """(futures, k, h, w) code grids of frames t+1 … t+k from the last `context` observed frames: greedy at
+        temperature 0 (one future), else `futures` futures sampled at `temperature`."""
         if len(observed) < self.context:
             raise ValueError(f"the model needs the last {self.context} frames, got {len(observed)}")
-        context = self.tokenizer.encode(torch.from_numpy(np.ascontiguousarray(observed[-self.context :])))[None]
+        frames = torch.from_numpy(np.ascontiguousarray(observed[-self.context :]))
+        context = self.tokenizer.encode(frames)[None].expand(futures, -1, -1, -1)
         grids = []
         for _ in range(k):
-            grid = generate_fast(self.prior, context, self.code_temperature, self.generator)
-            grids.append(grid[0])
+            grid = generate_fast(self.prior, context, temperature, self.generator)  # (futures, h, w)
+            grids.append(grid)
             context = torch.cat([context[:, 1:], grid[:, None]], dim=1)
-        return torch.stack(grids)
+        return torch.stack(grids, dim=1)
 
     @torch.inference_mode()
     def predict(self, observed: np.ndarray, k: int, samples: int | None = None) -> Prediction:
-        """Frames t+1 … t+k (mid-point, or merged over `samples` decoder samples; default: the model's)."""
+        """Frames t+1 … t+k: the greedy future's mid-point, merged with `samples` decoder samples (default: the
+        model's) and with the mid-points of the model's sampled futures."""
         samples = self.samples if samples is None else samples
-        codes = self.predict_codes(observed, k)
+        codes = self.predict_codes(observed, k)[0]
         mid = self.tokenizer.decode(codes).numpy()
+        others = []
         if samples:
-            mid = merge_samples(mid, self.tokenizer.decode_samples(codes, samples, self.generator).numpy())
+            others.append(self.tokenizer.decode_samples(codes, samples, self.generator).numpy())
+        if self.futures:
+            sampled = self.predict_codes(observed, k, self.futures, temperature=1.0)
+            others.append(self.tokenizer.decode(sampled.flatten(0, 1)).numpy().reshape(self.futures, k, *mid.shape[1:]))
+        if others:
+            mid = merge_samples(mid, np.concatenate(others))
         return Prediction.from_frames(mid)
 
 
 def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0,
-                     seed: int = 0) -> LearnedWorldModel:  # fmt: skip
+                     futures: int = 0, seed: int = 0) -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
     pretrained checkpoints of the configuration `model` ("default" or "paper")."""
     from dynplan.models import pretrained_path
@@ -102,4 +112,5 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
     if missing:
         raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
                               f"`python -m flows.train vqvae|pixelcnn --model {model}`")  # fmt: skip
-    return LearnedWorldModel(load_vqvae_checkpoint(paths[0]), load_pixelcnn_checkpoint(paths[1]), samples, seed=seed)
+    tokenizer, prior = load_vqvae_checkpoint(paths[0]), load_pixelcnn_checkpoint(paths[1])
+    return LearnedWorldModel(tokenizer, prior, samples, futures, seed)
