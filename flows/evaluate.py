@@ -52,7 +52,7 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=EVAL_SEED_START)
     todo = pending(cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
-                         episodes, models=tuple(models or ["default"])), results_dir)  # fmt: skip
+                         episodes, models=tuple(models or ["default"])), results_dir, log_dir, playouts)  # fmt: skip
     print(f"{len(todo)} episodes to play")
     futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
                                      unmapped(playouts))  # fmt: skip

@@ -62,7 +62,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--seed", type=int, default=0, help="seed of the planner's own randomness")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     args = parser.parse_args(argv)
-    out = args.out or str(default_outputs(args.log, args.planner))
+    out = args.out or str(default_outputs(args.log, args.planner, args.model, args.samples, args.futures))
     try:  # fail fast, with one line, before any flow machinery starts
         prepare(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, args.model, args.samples,
                 args.futures)  # fmt: skip

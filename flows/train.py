@@ -101,7 +101,9 @@ def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default"
     path = train_vqvae_task(store, out, config.model_dump(), TrainBudget(**(budget or {})).model_dump())
     print(f"checkpoint: {path}")
     if Path(path).name == "vqvae.pt":  # finished (not stopped early by max_minutes): encode the store
-        print(f"codes: {build_codes_task(store, path, model)} in {store}")
+        # A run with overrides is an experiment: its codes go beside the preset's, not over them.
+        name = Path(path).parent.name if overrides else model
+        print(f"codes: {build_codes_task(store, path, name)} in {store}")
     return path
 
 

@@ -45,7 +45,7 @@ def test_run_case_writes_a_result_and_resumes(tmp_path, eval_logs):
     stamp = path.stat().st_mtime_ns
     assert run_case(case, eval_logs, tmp_path) == record
     assert path.stat().st_mtime_ns == stamp
-    assert pending([case, Case("oracle", 1.0, 5, EVAL_SEED_START)], tmp_path) == [
+    assert pending([case, Case("oracle", 1.0, 5, EVAL_SEED_START)], tmp_path, eval_logs) == [
         Case("oracle", 1.0, 5, EVAL_SEED_START)
     ]
     random = run_case(Case("random", 0.5, None, EVAL_SEED_START + 1), eval_logs, tmp_path)
@@ -143,6 +143,8 @@ def test_results_are_reused_only_for_the_same_playouts_and_log(tmp_path, eval_lo
     case = Case("oracle", 1.0, 1, EVAL_SEED_START)
     first = run_case(case, eval_logs, tmp_path, playouts=10)
     assert run_case(case, eval_logs, tmp_path, playouts=10) == first
+    assert pending([case], tmp_path, eval_logs, playouts=10) == []
+    assert pending([case], tmp_path, eval_logs, playouts=20) == [case]  # the flow replays what changed
     again = run_case(case, eval_logs, tmp_path, playouts=20)
     assert again["playouts"] == 20 and len(again["log_sha256"]) == 64
     with pytest.raises(ValueError, match="mix playouts"):
@@ -186,6 +188,7 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
     records = [run_case(c, eval_logs, tmp_path, playouts=5) for c in all_cases]
+    assert records[0]["world_model_sha256"] == "missing+missing" or "+" in records[0]["world_model_sha256"]
     assert all_cases[0].result_path(tmp_path).parent.parent.name == "samples5-default"
     rows = aggregate(records)
     assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}

@@ -114,19 +114,43 @@ def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
     return out
 
 
+@functools.cache
+def _world_model_identity(model: str) -> str:
+    """SHA-256 of the committed checkpoints a learned technique of configuration `model` plays with."""
+    from dynplan.models import pretrained_path
+
+    paths = [pretrained_path(stage, model) for stage in ("vqvae", "pixelcnn")]
+    return "+".join(sha256_file(p) if p.exists() else "missing" for p in paths)
+
+
+def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int) -> dict:
+    """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights."""
+    source = log_path(log_dir, case.seed)
+    provenance = {"playouts": playouts, "log_sha256": sha256_file(source) if source.exists() else None}
+    if case.model is not None:
+        provenance["world_model_sha256"] = _world_model_identity(case.model)
+    return provenance
+
+
+def _existing(case: Case, results_dir: str | os.PathLike, provenance: dict) -> dict | None:
+    """The stored result of `case`, if it was played under the same provenance (else None: play it again)."""
+    path = case.result_path(results_dir)
+    try:
+        record = json.loads(path.read_text())
+    except (FileNotFoundError, json.JSONDecodeError):
+        return None  # missing, or damaged: recompute
+    return record if all(record.get(k) == v for k, v in provenance.items()) else None
+
+
 def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100) -> dict:
     """Play one case against its recorded episode and write its result JSON — or return the existing one, if it
-    was played with the same playouts against the same log (by checksum)."""
-    path = case.result_path(results_dir)
+    was played with the same playouts, against the same log and (learned techniques) the same weights."""
+    provenance = _provenance(case, log_dir, playouts)
+    existing = _existing(case, results_dir, provenance)
+    if existing is not None:
+        return existing
     source = log_path(log_dir, case.seed)
-    log_sha256 = sha256_file(source) if source.exists() else None
-    if path.exists():
-        try:
-            record = json.loads(path.read_text())
-        except json.JSONDecodeError:
-            record = {}  # a damaged result is recomputed
-        if record.get("playouts") == playouts and record.get("log_sha256") == log_sha256:
-            return record  # the same case against the same recorded episode: reuse
+    path = case.result_path(results_dir)
     start = time.perf_counter()
     log = read_episode_log(source)
     if log.seed != case.seed:
@@ -144,8 +168,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
         **asdict(case),
         "outcome": result.outcome,
         "steps": result.steps,
-        "playouts": playouts,
-        "log_sha256": log_sha256,
+        **provenance,
         "decision_ms": [round(ms, 4) for ms in result.decision_ms],
         "wall_s": round(time.perf_counter() - start, 4),
     }
@@ -153,6 +176,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
     return record
 
 
-def pending(all_cases: list[Case], results_dir: str | os.PathLike) -> list[Case]:
-    """The cases without a result file yet (what a resumed evaluation still has to play)."""
-    return [c for c in all_cases if not c.result_path(results_dir).exists()]
+def pending(all_cases: list[Case], results_dir: str | os.PathLike, log_dir: str | os.PathLike,
+            playouts: int = 100) -> list[Case]:  # fmt: skip
+    """The cases without a reusable result (what a resumed evaluation still has to play)."""
+    return [c for c in all_cases if _existing(c, results_dir, _provenance(c, log_dir, playouts)) is None]

@@ -112,8 +112,10 @@ def _gif_panel(frames: np.ndarray, t: int, position: np.ndarray, prediction: Pre
                          error_image(truth, predicted)])  # fmt: skip
 
 
-def default_outputs(log: str | os.PathLike, planner: str) -> Path:
+def default_outputs(log: str | os.PathLike, planner: str, model: str = "default", samples: int = 0,
+                    futures: int = 0) -> Path:  # fmt: skip
     """Default replay log path: a `replays/` folder beside the input's folder (kept apart from recorded
     episodes, so that a folder of logs stays a folder of worlds), named for the episode and the planner."""
     log = Path(log)
-    return log.parent.parent / "replays" / f"{log.stem}.replay-{planner}.mcap"
+    name = planner if planner != "model" else f"model-{model}-s{samples}-f{futures}"
+    return log.parent.parent / "replays" / f"{log.stem}.replay-{name}.mcap"

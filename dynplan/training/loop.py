@@ -134,7 +134,8 @@ def write_csv(path: Path, rows: list[dict]) -> None:
     """Write the metrics history as CSV, atomically (rewritten whole each epoch, so it always matches the
     checkpoint it sits beside)."""
     buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]))
+    columns = list(dict.fromkeys(key for row in rows for key in row))  # rows from older code may lack new metrics
+    writer = csv.DictWriter(buffer, fieldnames=columns, restval="")
     writer.writeheader()
     for row in rows:
         writer.writerow({k: (round(v, 6) if isinstance(v, float) else v) for k, v in row.items()})
