@@ -44,16 +44,16 @@ def evaluate(model: VQVAE, frames: np.ndarray, batch: int = 256) -> dict[str, fl
     for i in range(0, len(frames), batch):
         x = torch.from_numpy(frames[i : i + batch])
         c = model.encode(x)
-        codes.append(c.reshape(len(x), -1))
+        codes.append(c.reshape(len(x), -1, model.config.n_codebooks))
         decoded.append(model.decode(c).numpy())
     model.train()
-    all_codes = torch.cat(codes).flatten()
-    counts = torch.bincount(all_codes, minlength=model.config.codebook_size).double()
-    p = counts / counts.sum()
+    per_codebook = torch.cat(codes).flatten(0, 1).t()  # (n, codes)
+    counts = torch.stack([torch.bincount(c, minlength=model.config.codebook_size) for c in per_codebook]).double()
+    p = counts / counts.sum(1, keepdim=True)
     return {
         **{f"val_{k}": v for k, v in frame_errors(frames, np.concatenate(decoded)).items()},
-        "val_codes_used": int((counts > 0).sum()),
-        "val_perplexity": float(torch.exp(-(p * torch.log(p + 1e-12)).sum())),
+        "val_codes_used": float((counts > 0).sum(1).double().mean()),  # per codebook, averaged over codebooks
+        "val_perplexity": float(torch.exp(-(p * torch.log(p + 1e-12)).sum(1)).mean()),
     }
 
 
