@@ -33,7 +33,7 @@ def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20) -> dict[s
     p = counts / counts.sum()
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
     return {
-        "model": model.config.name,
+        "run": Path(checkpoint).parent.name,
         "epoch": state["epoch"],
         "frames_seen": state["history"][-1]["frames_seen"],
         "train_hours": round(state["elapsed_s"] / 3600, 2),
@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> None:
     for path in args.checkpoints:
         print(json.dumps(held_out_errors(path, args.episodes)))
     if args.plot:
-        runs = {load_vqvae_checkpoint(p).config.name: Path(p).parent / "metrics.csv" for p in args.checkpoints}
+        runs = {Path(p).parent.name: Path(p).parent / "metrics.csv" for p in args.checkpoints}
         plot_curves(runs, args.plot)
 
 
