@@ -17,6 +17,9 @@ from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
+from dynplan.config import ConfigError
+from dynplan.data.collect import CollectPlan
+from dynplan.env.config import RoadConfig
 from dynplan.evaluation.protocol import (
     AGENT_SPEEDS,
     EVAL_EPISODES,
@@ -30,6 +33,7 @@ from dynplan.evaluation.protocol import (
     run_case,
 )
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
+from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
 from flows.collect import collect_episodes
 from flows.runners import dask_address, task_runner
@@ -83,12 +87,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     args = parser.parse_args(argv)
-    problems = [f"--agent-speeds {s} must be > 0" for s in args.agent_speeds if s <= 0]
-    problems += [f"--rollout-steps {k} must be in [1, 64]" for k in args.rollout_steps if not 1 <= k <= 64]
-    problems += [f"--episodes {args.episodes} must be >= 1"] if args.episodes < 1 else []
-    problems += [f"--playouts {args.playouts} must be >= 1"] if args.playouts < 1 else []
-    if problems:
-        parser.error("; ".join(problems))
+    try:  # the configs' own validation, before any flow machinery starts
+        for speed in args.agent_speeds:
+            RoadConfig(agent_speed=speed)
+        for k in args.rollout_steps:
+            MCTSConfig(rollout_steps=k, playouts=args.playouts)
+        CollectPlan(episodes=args.episodes, seed=EVAL_SEED_START)
+    except ConfigError as error:
+        parser.error(str(error))
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
     rows = evaluate_planner.with_options(task_runner=task_runner(dask_address(args.dask_address)))(
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,

@@ -80,7 +80,7 @@ def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path,
             "decision_ms_median"}  # fmt: skip
     table = json.loads((results / "table1.json").read_text())
     assert all(keys <= set(row) for row in table) and all(row["episodes"] == 2 for row in table)
-    assert "Regenerate with `python -m flows.evaluate`" in (results / "table1.md").read_text()
+    assert "Last run: `python -m flows.evaluate`" in (results / "table1.md").read_text()
     stamps = {p: p.stat().st_mtime_ns for p in results.glob("episodes/*/*/*.json")}
     assert len(stamps) == 6
     evaluate_planner(**kwargs)

@@ -105,8 +105,10 @@ def write_table(rows: list[dict], results_dir: str | os.PathLike, command: str) 
     json_path = write_bytes_atomic(results_dir / "table1.json", (json.dumps(rows, indent=1) + "\n").encode())
     text = (
         "# Table 1: MCTS agents over the same recorded episodes\n\n"
-        f"Regenerate with `{command}`. Cells: goals / timeouts / deaths, and steps (mean ± std over the episodes "
-        "not died). Speeds: 2× = 1.0 px/step (T = 203), 1× = 0.5 px/step (T = 407). 100 playouts per decision.\n\n"
+        "Rows accumulate across runs of `python -m flows.evaluate`; a row regenerates with "
+        "`python -m flows.evaluate --techniques TECHNIQUE [--models MODEL]` (100 episodes, 100 playouts, both speeds, "
+        f"k = 1, 3, 5, 10 by default). Last run: `{command}`. Cells: goals / timeouts / deaths, and steps (mean ± std "
+        "over the episodes not died). Speeds: 2× = 1.0 px/step (T = 203), 1× = 0.5 px/step (T = 407).\n\n"
         + render_markdown(rows)
     )
     md_path = write_bytes_atomic(results_dir / "table1.md", text.encode())
