@@ -31,10 +31,6 @@ class EpisodeResult:
     decision_ms: list[float] = field(default_factory=list)
     track: AgentTrack | None = None
 
-    def summary(self) -> dict:
-        ms = np.asarray(self.decision_ms) if self.decision_ms else np.zeros(1)
-        return {"seed": self.seed, "outcome": self.outcome, "steps": self.steps, "reward": self.reward,
-                "decision_ms_mean": float(ms.mean()), "decision_ms_median": float(np.median(ms))}  # fmt: skip
 
 
 def run_episode(
