@@ -32,7 +32,6 @@ class EpisodeResult:
     track: AgentTrack | None = None
 
 
-
 def run_episode(
     world: World,
     planner: MCTSPlanner | RandomPlanner,
