@@ -3,13 +3,17 @@
 A bad value names the field, the value given and the field's valid range; an unknown key is named together
 with the valid keys. Configs serialise to plain dicts (`model_dump`) for Prefect parameters, cache keys and
 log metadata.
+
+A field added after configs were first hashed into cache keys and checkpoints lists itself in `_neutral` with
+the value that means "as before": it is left out of the dict while it has that value, so existing keys and
+checkpoints stay valid.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError, model_serializer
 from pydantic.fields import FieldInfo
 
 
@@ -61,6 +65,15 @@ class Config(BaseModel):
     """Frozen, strict-keyed config whose construction errors are `ConfigError`s."""
 
     model_config = ConfigDict(frozen=True, extra="forbid")
+    _neutral: ClassVar[dict[str, Any]] = {}
+
+    @model_serializer(mode="wrap")
+    def _omit_neutral(self, handler):
+        data = handler(self)
+        for name, value in self._neutral.items():
+            if name in data and data[name] == value:
+                del data[name]
+        return data
 
     def __init__(self, **data: Any) -> None:
         try:

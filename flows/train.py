@@ -21,7 +21,7 @@ from prefect.context import TaskRunContext
 
 from dynplan.config import ConfigError
 from dynplan.data.codes import build_codes
-from dynplan.data.store import fingerprint
+from dynplan.data.store import fingerprint, sha256_file
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
 from dynplan.training import checkpoint
@@ -36,6 +36,8 @@ from dynplan.training.vqvae import train_vqvae
 def _run_dir(kind: str, out: str, config: dict, budget: dict, sources: list, code_version: str) -> Path:
     """Where a training run lives: named by what determines its result (the epoch count excepted)."""
     determining = {k: v for k, v in budget.items() if k not in ("epochs", "max_minutes", "threads")}
+    if determining.get("init_from"):  # a warm start is identified by the weights it starts from, not their path
+        determining["init_from"] = sha256_file(determining["init_from"])
     key = digest(*sources, config, determining, code_version)
     return Path(out) / f"{kind}-{config['name']}-{key[:12]}"
 
@@ -128,16 +130,19 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--steps-per-epoch", type=int, default=TrainBudget().steps_per_epoch)
     parser.add_argument("--max-minutes", type=float, help="stop after this long (resumable)")
     parser.add_argument("--threads", type=int, help="torch threads (default: all cores)")
+    parser.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (same architecture)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
     args = parser.parse_args(argv)
     try:
         overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
         budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
-                             threads=args.threads).model_dump()  # fmt: skip
+                             threads=args.threads, init_from=args.init_from).model_dump()  # fmt: skip
         if args.stage == "vqvae":
             VQVAEConfig(**{**PRESETS[args.model].model_dump(), **overrides})
         else:
             PixelCNNConfig(**{**PIXELCNN_PRESETS[args.model].model_dump(), **overrides})
+        if args.init_from and not Path(args.init_from).is_file():
+            raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
         if not Path(args.store).exists():
             raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
         if args.stage == "pixelcnn" and f"codes_{args.model}" not in zarr.open_group(args.store, mode="r"):

@@ -192,3 +192,29 @@ def test_load_vqvae_names_what_is_missing(tmp_path, store):
     path = train_vqvae(store, tmp_path, TINY, TrainBudget(epochs=1, steps_per_epoch=2, val_frames=20, threads=1))
     model = load_vqvae(path)
     assert model.decode(model.encode(torch.zeros(1, 48, 48, dtype=torch.uint8))).shape == (1, 48, 48)
+
+
+def test_a_run_can_start_from_another_runs_weights(tmp_path, store):
+    budget = TrainBudget(epochs=1, steps_per_epoch=3, val_frames=20, threads=1)
+    source = train_vqvae(store, tmp_path / "a", TINY, budget)
+    tuned = VQVAEConfig(**TINY.model_copy(update={"goal_weight": 10.0, "learning_rate": 1e-9}).model_dump())
+    warm = TrainBudget(**{**budget.model_dump(), "init_from": str(source)})
+    path = train_vqvae(store, tmp_path / "b", tuned, warm)
+    before, after = torch.load(source, weights_only=False), torch.load(path, weights_only=False)
+    assert after["init_from"] == str(source)
+    for name, value in before["model"].items():  # a vanishing learning rate: still the source's weights
+        if value.is_floating_point() and "quantizer" not in name:  # (EMA codebooks move without the optimiser)
+            torch.testing.assert_close(after["model"][name], value, atol=1e-5, rtol=0)
+    other = VQVAEConfig(**TINY.model_copy(update={"codebook_size": 32}).model_dump())
+    with pytest.raises(CheckpointError, match=r"vqvae.pt: cannot start this run from it: the architecture differs"):
+        train_vqvae(store, tmp_path / "c", other, warm)
+
+
+def test_fields_added_later_keep_earlier_configs_keys():
+    """Checkpoints and run folders are keyed by the config's dict: a field left at its neutral value is not in it."""
+    from dynplan.training.checkpoint import digest
+
+    assert "goal_weight" not in PRESETS["paper"].model_dump()
+    assert PRESETS["default"].model_dump()["goal_weight"] == 10.0
+    assert digest(PRESETS["paper"].model_dump())[:12] == "70ed61fd9765"  # as before goal_weight existed
+    assert "init_from" not in TrainBudget().model_dump()

@@ -16,6 +16,7 @@ from pydantic import Field, model_validator
 from torch import nn
 
 from dynplan.config import Config
+from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models.likelihood import Categorical, DMoL, to_unit
 from dynplan.models.quantize import VectorQuantizer
 
@@ -38,8 +39,11 @@ class VQVAEConfig(Config):
     restart_dead: bool = Field(False, description="move unused codes onto encoder outputs (EMA only)")
     commitment: float = Field(0.25, ge=0.0, le=10.0, description="commitment loss weight β")
     obstacle_weight: float = Field(1.0, gt=0.0, le=100.0, description="loss weight of non-free pixels")
+    goal_weight: float = Field(1.0, gt=0.0, le=1000.0, description="loss weight of goal pixels")
     learning_rate: float = Field(1e-3, gt=0.0, le=1.0, description="Adam learning rate")
     batch_size: int = Field(32, ge=1, le=4096, description="frames per batch")
+
+    _neutral = {"goal_weight": 1.0}
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -77,6 +81,7 @@ PRESETS: dict[str, VQVAEConfig] = {
         likelihood="categorical",
         ema=True,
         restart_dead=True,
+        goal_weight=10.0,
     ),
 }
 
@@ -150,8 +155,10 @@ class VQVAE(nn.Module):
         q = self.quantizer(z)
         params = self.decoder(q.quantized)
         nll = self.pixel.nll(params, frames)
-        if self.config.obstacle_weight != 1.0:
-            nll = nll * torch.where(frames != 0, self.config.obstacle_weight, 1.0)
+        c = self.config
+        if c.obstacle_weight != 1.0 or c.goal_weight != 1.0:
+            weight = torch.where(frames != FREE, c.obstacle_weight, 1.0)  # goal pixels included, as before
+            nll = nll * weight * torch.where(frames == GOAL_VALUE, c.goal_weight, 1.0)
         losses = {"reconstruction": nll.mean(), "vq": q.loss}
         return VQVAEOutput(params, q.codes, losses, q.perplexity, q.counts)
 

@@ -33,6 +33,9 @@ class TrainBudget(Config):
     max_minutes: float | None = Field(None, gt=0, description="stop (resumably) after this much wall time")
     threads: int | None = Field(None, ge=1, le=256, description="torch threads (default: all cores)")
     seed: int = Field(0, ge=0, description="seed of initialisation and batch order")
+    init_from: str | None = Field(None, description="checkpoint whose model weights start the run (fine-tuning)")
+
+    _neutral = {"init_from": None}
 
 
 @dataclass
@@ -90,6 +93,13 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
         epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
         if "torch_rng" in state:
             torch.set_rng_state(state["torch_rng"])  # e.g. codebook restarts draw from it: resume bit for bit
+    elif budget.init_from:
+        state = checkpoint.load(budget.init_from, stage.kind)
+        try:
+            stage.model.load_state_dict(state["model"])
+        except RuntimeError as error:
+            raise checkpoint.CheckpointError(f"{budget.init_from}: cannot start this run from it: the architecture "
+                                             f"differs ({str(error).splitlines()[0]})") from None  # fmt: skip
     write_bytes_atomic(out_dir / "config.json", json.dumps(stage.config, indent=1).encode())
     started = time.perf_counter()
     while epoch < budget.epochs:
@@ -117,7 +127,8 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
         history.append(row)
         checkpoint.save(latest, {"kind": stage.kind, "config": stage.config, "model": stage.model.state_dict(),
                                  "optimiser": stage.optimiser.state_dict(), "epoch": epoch, "elapsed_s": elapsed,
-                                 "history": history, "torch_rng": torch.get_rng_state()})  # fmt: skip
+                                 "history": history, "torch_rng": torch.get_rng_state(),
+                                 "init_from": budget.init_from})  # fmt: skip
         write_csv(out_dir / "metrics.csv", history)
         if stage.plot is not None:
             stage.plot(out_dir)
@@ -126,7 +137,8 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
     if epoch < budget.epochs:
         return latest
     state = checkpoint.load(latest, stage.kind, stage.config)
-    checkpoint.save(final, {key: state[key] for key in ("kind", "config", "model", "epoch", "elapsed_s", "history")})
+    kept = ("kind", "config", "model", "epoch", "elapsed_s", "history", "init_from")
+    checkpoint.save(final, {key: state.get(key) for key in kept})
     return final
 
 
