@@ -1,9 +1,11 @@
 """Prefect flows: thin wrappers that wire dynplan's library functions into tasks.
 
 Defaults set here before Prefect is imported: no usage telemetry (this project runs on closed networks, and
-the ephemeral API's SQLite database is locked by the heartbeat when it cannot send).
+the ephemeral API's SQLite database is locked by the heartbeat when it cannot send), and a longer wait for the
+ephemeral API to start (Prefect's 20 s is too short on a busy 2-core machine, e.g. beside a training run).
 """
 
 import os
 
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")

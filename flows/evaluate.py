@@ -42,8 +42,8 @@ DEFAULT_COMMAND = "python -m flows.evaluate"
 
 
 @task(name="evaluate-episode", cache_policy=NO_CACHE)
-def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int) -> dict:
-    return run_case(Case(**case), log_dir, results_dir, playouts)
+def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int, model_dir: str | None = None) -> dict:
+    return run_case(Case(**case), log_dir, results_dir, playouts, model_dir)
 
 
 @flow(name="evaluate-planner", log_prints=True)
@@ -51,15 +51,17 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      rollout_steps: list[int] | None = None, episodes: int = EVAL_EPISODES,
                      playouts: int = 100, log_dir: str = "datasets/eval_logs",
                      results_dir: str = "datasets/results", command: str = DEFAULT_COMMAND,
-                     models: list[str] | None = None) -> list[dict]:  # fmt: skip
-    """Play the missing cases and write the aggregated table."""
+                     models: list[str] | None = None, model_dir: str | None = None) -> list[dict]:  # fmt: skip
+    """Play the missing cases and write the aggregated table. Learned techniques use the committed weights, or
+    those under `model_dir/<model>/` (a pipeline's own)."""
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=EVAL_SEED_START)
     todo = pending(cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
-                         episodes, models=tuple(models or ["default"])), results_dir, log_dir, playouts)  # fmt: skip
+                         episodes, models=tuple(models or ["default"])), results_dir, log_dir, playouts,
+                   model_dir)  # fmt: skip
     print(f"{len(todo)} episodes to play")
     futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
-                                     unmapped(playouts))  # fmt: skip
+                                     unmapped(playouts), unmapped(model_dir))  # fmt: skip
     for future in progress(as_completed(futures), total=len(futures), description="evaluate"):
         future.result()
     rows = aggregate(load_results(results_dir))

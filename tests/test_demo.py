@@ -1,4 +1,4 @@
-"""The demo episode (library and the README's main command) and the benchmark command line."""
+"""The demo episode (library and `python -m flows.demo`) and the benchmark command line."""
 
 import json
 import os

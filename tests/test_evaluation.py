@@ -184,7 +184,7 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     tokenizer = VQVAE(VQVAEConfig(channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16,
                                   likelihood="categorical"))  # fmt: skip
     prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=2, condition_channels=8))
-    monkeypatch.setattr(protocol, "_learned_parts", lambda model: (tokenizer, prior))
+    monkeypatch.setattr(protocol, "_learned_parts", lambda model, model_dir: (tokenizer, prior))
     all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
     records = [run_case(c, eval_logs, tmp_path, playouts=5) for c in all_cases]

@@ -205,9 +205,13 @@ def test_a_run_can_start_from_another_runs_weights(tmp_path, store):
     for name, value in before["model"].items():  # a vanishing learning rate: still the source's weights
         if value.is_floating_point() and "quantizer" not in name:  # (EMA codebooks move without the optimiser)
             torch.testing.assert_close(after["model"][name], value, atol=1e-5, rtol=0)
-    other = VQVAEConfig(**TINY.model_copy(update={"codebook_size": 32}).model_dump())
+    grown = VQVAEConfig(**TINY.model_copy(update={"codebook_size": 32, "learning_rate": 1e-9}).model_dump())
+    bigger = torch.load(train_vqvae(store, tmp_path / "c", grown, warm), weights_only=False)["model"]
+    assert bigger["quantizer.embed"].shape[1] == 32  # the old 16 codes first, then fresh ones
+    torch.testing.assert_close(bigger["encoder.0.weight"], before["model"]["encoder.0.weight"], atol=1e-5, rtol=0)
+    other = VQVAEConfig(**TINY.model_copy(update={"channels": (8, 8, 4)}).model_dump())
     with pytest.raises(CheckpointError, match=r"vqvae.pt: cannot start this run from it: the architecture differs"):
-        train_vqvae(store, tmp_path / "c", other, warm)
+        train_vqvae(store, tmp_path / "d", other, warm)
 
 
 def test_fields_added_later_keep_earlier_configs_keys():

@@ -13,6 +13,7 @@ from dynplan.bench.data import bench_data
 from dynplan.bench.decision import bench_decision
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
+from dynplan.bench.pipeline import bench_pipeline
 from dynplan.bench.vqvae import bench_vqvae
 from dynplan.bench.world import bench_world
 
@@ -26,6 +27,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "vqvae": bench_vqvae,
     "generation": bench_generation,
     "decision": bench_decision,
+    "pipeline": bench_pipeline,
 }
 
 __all__ = ["BENCHMARKS", "Results"]

@@ -39,28 +39,56 @@ LEARNED = {"mid": (0, 0), "samples5": (5, 0), "samples10": (10, 0), "futures5": 
 WORLD_MODELS = ("default", "paper")
 
 
+def world_model_paths(model: str, model_dir: str | os.PathLike | None = None) -> tuple[Path, Path]:
+    """The (VQ-VAE, PixelCNN) checkpoints of configuration `model`: `model_dir/<model>/{vqvae,pixelcnn}.pt` when a
+    pipeline trained its own, else the committed pretrained ones."""
+    from dynplan.models import pretrained_path
+
+    if model_dir is not None:
+        return Path(model_dir) / model / "vqvae.pt", Path(model_dir) / model / "pixelcnn.pt"
+    return pretrained_path("vqvae", model), pretrained_path("pixelcnn", model)
+
+
+def _stamp(paths: tuple[Path, ...]) -> tuple:
+    """What identifies the files' current versions cheaply (so long-lived processes see retrained weights)."""
+    return tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) if p.exists() else (str(p),) for p in paths)
+
+
 @functools.cache
-def _learned_parts(model: str):
-    from dynplan.models.world_model import load_world_model
+def _load_parts(stamp: tuple):
+    from dynplan.training.checkpoint import CheckpointError
+    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
+    from dynplan.training.vqvae import load_vqvae_checkpoint
 
-    world_model = load_world_model(model=model)
-    return world_model.tokenizer, world_model.prior
+    missing = [entry[0] for entry in stamp if len(entry) == 1]
+    if missing:
+        raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
+                              f"`python -m flows.train vqvae|pixelcnn` or the collect-train-eval flow")  # fmt: skip
+    return load_vqvae_checkpoint(stamp[0][0]), load_pixelcnn_checkpoint(stamp[1][0])
 
 
-def learned_model(model: str, samples: int, seed: int, futures: int = 0) -> ForwardModel:
-    """The learned forward model of configuration `model` from the committed checkpoints (loaded once)."""
+def _learned_parts(model: str, model_dir: str | None):
+    return _load_parts(_stamp(world_model_paths(model, model_dir)))
+
+
+def learned_model(model: str, samples: int, seed: int, futures: int = 0,
+                  model_dir: str | os.PathLike | None = None) -> ForwardModel:  # fmt: skip
+    """The learned forward model of configuration `model` (loaded once per process and version of the
+    checkpoints; see `world_model_paths`)."""
     from dynplan.models.world_model import LearnedWorldModel
 
-    return LearnedWorldModel(*_learned_parts(model), samples=samples, futures=futures, seed=seed)
+    parts = _learned_parts(model, None if model_dir is None else str(model_dir))
+    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed)
 
 
-#: technique → factory of its forward model for (recorded world, case) (None: the agent needs no model).
-MODELS: dict[str, Callable[[World, Case], ForwardModel | None]] = {
-    "oracle": lambda world, case: OracleModel(world),
-    "zero": lambda world, case: ZeroModel(),
-    "random": lambda world, case: None,
+#: technique → factory of its forward model for (recorded world, case, world-model folder or None) (None: the
+#: agent needs no model).
+MODELS: dict[str, Callable[[World, Case, str | None], ForwardModel | None]] = {
+    "oracle": lambda world, case, model_dir: OracleModel(world),
+    "zero": lambda world, case, model_dir: ZeroModel(),
+    "random": lambda world, case, model_dir: None,
     **{
-        name: (lambda world, case, n=n, f=f: learned_model(case.model, n, case.planner_seed(), f))
+        name: (lambda world, case, model_dir, n=n, f=f: learned_model(case.model, n, case.planner_seed(), f, model_dir))
         for name, (n, f) in LEARNED.items()
     },
 }
@@ -115,20 +143,21 @@ def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
 
 
 @functools.cache
-def _world_model_identity(model: str) -> str:
-    """SHA-256 of the committed checkpoints a learned technique of configuration `model` plays with."""
-    from dynplan.models import pretrained_path
-
-    paths = [pretrained_path(stage, model) for stage in ("vqvae", "pixelcnn")]
-    return "+".join(sha256_file(p) if p.exists() else "missing" for p in paths)
+def _identity(stamp: tuple) -> str:
+    return "+".join(sha256_file(entry[0]) if len(entry) > 1 else "missing" for entry in stamp)
 
 
-def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int) -> dict:
+def _world_model_identity(model: str, model_dir: str | None) -> str:
+    """SHA-256 of the checkpoints a learned technique of configuration `model` plays with."""
+    return _identity(_stamp(world_model_paths(model, model_dir)))
+
+
+def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir: str | None = None) -> dict:
     """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights."""
     source = log_path(log_dir, case.seed)
     provenance = {"playouts": playouts, "log_sha256": sha256_file(source) if source.exists() else None}
     if case.model is not None:
-        provenance["world_model_sha256"] = _world_model_identity(case.model)
+        provenance["world_model_sha256"] = _world_model_identity(case.model, model_dir)
     return provenance
 
 
@@ -142,10 +171,12 @@ def _existing(case: Case, results_dir: str | os.PathLike, provenance: dict) -> d
     return record if all(record.get(k) == v for k, v in provenance.items()) else None
 
 
-def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100) -> dict:
+def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100,
+             model_dir: str | None = None) -> dict:  # fmt: skip
     """Play one case against its recorded episode and write its result JSON — or return the existing one, if it
-    was played with the same playouts, against the same log and (learned techniques) the same weights."""
-    provenance = _provenance(case, log_dir, playouts)
+    was played with the same playouts, against the same log and (learned techniques) the same weights.
+    `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`)."""
+    provenance = _provenance(case, log_dir, playouts, model_dir)
     existing = _existing(case, results_dir, provenance)
     if existing is not None:
         return existing
@@ -156,7 +187,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
     if log.seed != case.seed:
         raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {case.seed}")
     world = log.world()
-    model = MODELS[case.technique](world, case)
+    model = MODELS[case.technique](world, case, model_dir)
     if case.rollout_steps is None:
         planner = RandomPlanner(case.planner_seed())
     else:
@@ -177,6 +208,6 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
 
 
 def pending(all_cases: list[Case], results_dir: str | os.PathLike, log_dir: str | os.PathLike,
-            playouts: int = 100) -> list[Case]:  # fmt: skip
+            playouts: int = 100, model_dir: str | None = None) -> list[Case]:  # fmt: skip
     """The cases without a reusable result (what a resumed evaluation still has to play)."""
-    return [c for c in all_cases if _existing(c, results_dir, _provenance(c, log_dir, playouts)) is None]
+    return [c for c in all_cases if _existing(c, results_dir, _provenance(c, log_dir, playouts, model_dir)) is None]

@@ -35,6 +35,7 @@ def prepare(
     model: str = "default",
     samples: int = 0,
     futures: int = 0,
+    model_dir: str | None = None,
 ) -> tuple[EpisodeLog, RoadConfig, MCTSConfig]:
     """Check a replay's inputs before running it: the log (LogError), the options (ConfigError/ValueError), and
     for the learned model its checkpoints (CheckpointError)."""
@@ -44,7 +45,9 @@ def prepare(
         if model not in WORLD_MODELS or samples < 0 or futures < 0:
             raise ValueError(f"model must be one of {list(WORLD_MODELS)} and samples, futures >= 0; got "
                              f"{model!r}, {samples}, {futures}")  # fmt: skip
-        learned_model(model, samples, 0, futures)  # loads (and caches) the checkpoints, or says which are missing
+        learned_model(
+            model, samples, 0, futures, model_dir
+        )  # loads (and caches) the checkpoints, or says which are missing
     mcts = MCTSConfig(rollout_steps=rollout_steps, playouts=playouts)
     config = RoadConfig(agent_speed=agent_speed)  # validates the speed before the log is read
     recorded = read_episode_log(log)
@@ -75,13 +78,16 @@ class ReplayResult:
 
 def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float = 1.0, rollout_steps: int = 3,
            playouts: int = 100, out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None,
-           seed: int = 0, model: str = "default", samples: int = 0, futures: int = 0) -> ReplayResult:  # fmt: skip
+           seed: int = 0, model: str = "default", samples: int = 0, futures: int = 0,
+           model_dir: str | None = None) -> ReplayResult:  # fmt: skip
     """Run `planner` ("oracle", "zero", "random", or "model": the learned world model `model` merging `samples`
-    decoder samples and `futures` sampled futures) on the episode recorded in `log`."""
-    recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts, model, samples, futures)
+    decoder samples and `futures` sampled futures; its checkpoints under `model_dir/<model>/` if given, else the
+    committed ones) on the episode recorded in `log`."""
+    recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts, model, samples, futures,
+                                     model_dir)  # fmt: skip
     world = recorded.world()
     learned = planner == "model"
-    forward = learned_model(model, samples, seed, futures) if learned else MODELS[planner](world, None)
+    forward = learned_model(model, samples, seed, futures, model_dir) if learned else MODELS[planner](world, None, None)
     agent = RandomPlanner(seed) if planner == "random" else MCTSPlanner(mcts, agent_speed, config.max_steps, seed)
     imagined: dict[int, np.ndarray] = {}
     panels: list[np.ndarray] = []

@@ -40,7 +40,7 @@ class PixelCNNConfig(Config):
 PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
     # Priors for the two tokenizers (K follows each one's codebook), sized for CPU training: 64 channels × 8 layers.
     "paper": PixelCNNConfig(name="paper", codebook_size=512),
-    "default": PixelCNNConfig(name="default", codebook_size=1024),
+    "default": PixelCNNConfig(name="default", codebook_size=4096),
     # The reference's size: 15 layers of 256 channels, a 7 × 7 first kernel, then 3 × 3.
     "reference": PixelCNNConfig(name="reference", codebook_size=512, channels=256, layers=15, condition_channels=256),
 }

@@ -94,12 +94,7 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
         if "torch_rng" in state:
             torch.set_rng_state(state["torch_rng"])  # e.g. codebook restarts draw from it: resume bit for bit
     elif budget.init_from:
-        state = checkpoint.load(budget.init_from, stage.kind)
-        try:
-            stage.model.load_state_dict(state["model"])
-        except RuntimeError as error:
-            raise checkpoint.CheckpointError(f"{budget.init_from}: cannot start this run from it: the architecture "
-                                             f"differs ({str(error).splitlines()[0]})") from None  # fmt: skip
+        warm_start(stage.model, budget.init_from, stage.kind)
     write_bytes_atomic(out_dir / "config.json", json.dumps(stage.config, indent=1).encode())
     started = time.perf_counter()
     while epoch < budget.epochs:
@@ -140,6 +135,33 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
     kept = ("kind", "config", "model", "epoch", "elapsed_s", "history", "init_from")
     checkpoint.save(final, {key: state.get(key) for key in kept})
     return final
+
+
+def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:
+    """Start `model` from the weights of the checkpoint at `path`. Tensors of the same shape are copied; a tensor
+    grown along one dimension (a larger codebook) gets the old entries first and keeps its fresh ones after
+    them (unused codes, which dead-code restarts then place). Anything else is a CheckpointError."""
+    source = checkpoint.load(path, kind)["model"]
+    target = model.state_dict()
+    if set(source) != set(target):
+        differing = ", ".join(sorted(set(source) ^ set(target))[:4])
+        raise checkpoint.CheckpointError(
+            f"{path}: cannot start this run from it: the architecture differs (parameters {differing} …)"
+        )
+    with torch.no_grad():
+        for name, value in source.items():
+            into = target[name]
+            grown = (
+                [d for d in range(into.dim()) if into.shape[d] != value.shape[d]] if into.dim() == value.dim() else None
+            )
+            if grown == []:
+                into.copy_(value)
+            elif grown is not None and len(grown) == 1 and into.shape[grown[0]] > value.shape[grown[0]]:
+                into.narrow(grown[0], 0, value.shape[grown[0]]).copy_(value)
+            else:
+                raise checkpoint.CheckpointError(f"{path}: cannot start this run from it: the architecture differs "
+                                                 f"({name}: {tuple(value.shape)} vs {tuple(into.shape)})")  # fmt: skip
+    model.load_state_dict(target)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:

@@ -1,0 +1,176 @@
+"""`python -m flows.collect_train_eval [--preset quick|full|smoke] [--out DIR] [--dask-address …]`: the whole
+system end to end — collect training episodes, build the frames store, train the VQ-VAE, encode the store, train
+the PixelCNN prior (per world-model configuration), evaluate the planners over the recorded evaluation
+episodes, and write the report (`DIR/<preset>/report/report.md` and `.html`).
+
+Every stage is cached across runs on purpose, by what determines its result rather than by Prefect's default
+policy (which includes the flow run's id and so never hits across runs): collection skips complete logs (one
+per seed), the store skips logs it holds (by SHA-256), training runs are keyed by (store fingerprint, config,
+budget, code version) — finished ones are Prefect cache hits, interrupted ones resume from their last epoch —,
+evaluation reuses every per-episode result played with the same playouts, log and weights, and the report's
+pictures are redrawn only when the checkpoints change. A rerun therefore does only what changed, and an
+interrupted run resumes where it stopped.
+
+Outputs: `DIR/<preset>/{logs,frames.zarr,checkpoints,models,results,report}` and the evaluation logs, shared by
+presets (they are the same recordings), in `DIR/eval_logs`. With a Dask scheduler address, collection, the
+store's conversion and the evaluation episodes run on the cluster's workers; training runs in this process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shlex
+import shutil
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
+
+from dynplan.config import ConfigError
+from dynplan.data.store import sha256_file
+from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.evaluation.table import aggregate, load_results
+from dynplan.files import atomic_path, write_bytes_atomic
+from dynplan.models import pretrained_path
+from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset
+from dynplan.pipeline.report import StageRecord, checkpoint_record, draw_figures, render_report, write_report
+from dynplan.training import checkpoint as checkpoints
+from flows.build_datasets import build_datasets
+from flows.collect import collect_episodes
+from flows.evaluate import evaluate_planner
+from flows.runners import dask_address, task_runner
+from flows.train import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
+
+
+def _install(source: Path, target: Path) -> None:
+    """Copy a final checkpoint to where the evaluation reads it, atomically, unless it is there already."""
+    if target.exists() and sha256_file(target) == sha256_file(source):
+        return
+    with atomic_path(target) as tmp:
+        shutil.copyfile(source, tmp)
+
+
+def _trained(run_dir: Path, kind: str, epochs: int) -> bool:
+    final = run_dir / f"{kind}.pt"
+    return final.exists() and checkpoints.load(final, kind)["epoch"] >= epochs
+
+
+@task(name="world-model", cache_policy=NO_CACHE)
+def world_model_task(preset: dict, model: str, store: str, work: str) -> list[dict]:
+    """Train (or reuse) both stages of configuration `model`, install them in `work/models/<model>/`; return
+    what happened per stage."""
+    plan = PipelinePreset(**preset)
+    target = Path(work) / "models" / model
+    records = []
+    if plan.pretrained and all(pretrained_path(s, model).exists() for s in ("vqvae", "pixelcnn")):
+        for stage in ("vqvae", "pixelcnn"):
+            _install(pretrained_path(stage, model), target / f"{stage}.pt")
+            records.append({"name": f"{stage} [{model}]", "wall_s": 0.0, "detail": "committed weights"})
+        return records
+    out = str(Path(work) / "checkpoints")
+    vq_config, vq_budget = plan.vqvae_config(model).model_dump(), plan.vqvae_plan(model).budget.model_dump()
+    cached = _trained(vqvae_run_dir(store, out, vq_config, vq_budget), "vqvae", vq_budget["epochs"])
+    start = time.perf_counter()
+    vqvae = train_vqvae_task(store, out, vq_config, vq_budget)
+    codes = build_codes_task(store, vqvae, f"codes_{model}")
+    detail = ("cached" if cached else "trained") + f", {vq_budget['epochs']} epochs; store encoded"
+    records.append({"name": f"vqvae [{model}]", "wall_s": time.perf_counter() - start, "detail": detail})
+    px_config, px_budget = plan.pixelcnn_config(model).model_dump(), plan.pixelcnn_plan(model).budget.model_dump()
+    cached = _trained(pixelcnn_run_dir(store, codes, out, px_config, px_budget), "pixelcnn", px_budget["epochs"])
+    start = time.perf_counter()
+    prior = train_pixelcnn_task(store, codes, out, px_config, px_budget)
+    detail = ("cached" if cached else "trained") + f", {px_budget['epochs']} epochs"
+    records.append({"name": f"pixelcnn [{model}]", "wall_s": time.perf_counter() - start, "detail": detail})
+    _install(Path(vqvae), target / "vqvae.pt")
+    _install(Path(prior), target / "pixelcnn.pt")
+    return records
+
+
+@task(name="report", cache_policy=NO_CACHE)
+def report_task(preset: dict, work: str, eval_logs: str, command: str, stages: list[dict]) -> str:
+    plan = PipelinePreset(**preset)
+    work_dir = Path(work)
+    models = {m: work_dir / "models" / m for m in plan.models}
+    start = time.perf_counter()
+    figures = None
+    if plan.learned_techniques:
+        figures = draw_figures(work_dir / "report", models, Path(eval_logs), EVAL_SEED_START,
+                               plan.evaluation.rollout_steps[0], plan.report_episodes,
+                               plan.learned_techniques[0])  # fmt: skip
+    records = [StageRecord(**s) for s in stages]
+    records.append(StageRecord("report", time.perf_counter() - start, "figures, GIF, Markdown and HTML"))
+    ckpts = [
+        checkpoint_record(stage, m, models[m] / f"{stage}.pt") for m in plan.models for stage in ("vqvae", "pixelcnn")
+    ]
+    rows = aggregate(load_results(work_dir / "results")) if (work_dir / "results").exists() else []
+    markdown = render_report(plan.model_dump(mode="json"), command, rows, records, ckpts, figures)
+    md, _ = write_report(work_dir / "report", markdown)
+    timings = json.dumps([asdict(r) for r in records], indent=1).encode()
+    write_bytes_atomic(work_dir / "report" / "stages.json", timings)
+    return str(md)
+
+
+@flow(name="collect-train-eval", log_prints=True)
+def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_address: str | None = None,
+                       command: str | None = None) -> str:  # fmt: skip
+    """Collect → build datasets → train both world-model stages → evaluate → report, each stage cached; returns
+    the report's path."""
+    if preset not in PIPELINE_PRESETS:
+        raise ValueError(f"preset must be one of {sorted(PIPELINE_PRESETS)}, got {preset!r}")
+    plan = PIPELINE_PRESETS[preset]
+    work, eval_logs = Path(out) / plan.name, Path(out) / "eval_logs"
+    store = str(work / "frames.zarr")
+    runner = task_runner(dask_address)
+    command = command or f"python -m flows.collect_train_eval --preset {preset} --out {out}"
+    stages: list[dict] = []
+
+    def timed(name: str, call, detail=lambda result: ""):
+        start = time.perf_counter()
+        result = call()
+        stages.append({"name": name, "wall_s": time.perf_counter() - start, "detail": detail(result)})
+        return result
+
+    timed("collect", lambda: collect_episodes.with_options(task_runner=runner)(
+        out=str(work / "logs"), episodes=plan.train_episodes, seed=0),
+        lambda r: f"{len(r['seeds'])} episodes, {r['written'] + r['rewritten']} recorded now")  # fmt: skip
+    timed("build datasets", lambda: build_datasets.with_options(task_runner=runner)(
+        log_dir=str(work / "logs"), out=store, dask_address=dask_address),
+        lambda r: f"{r['episodes']} episodes: {len(r['added'])} added")  # fmt: skip
+    for model in plan.models:
+        stages += world_model_task(plan.model_dump(mode="json"), model, store, str(work))
+    e = plan.evaluation
+    timed("evaluate", lambda: evaluate_planner.with_options(task_runner=runner)(
+        techniques=list(e.techniques), agent_speeds=list(e.agent_speeds), rollout_steps=list(e.rollout_steps),
+        episodes=e.episodes, playouts=e.playouts, log_dir=str(eval_logs), results_dir=str(work / "results"),
+        command=command, models=list(plan.models), model_dir=str(work / "models")),
+        lambda rows: f"{len(rows)} table rows")  # fmt: skip
+    report = report_task(plan.model_dump(mode="json"), str(work), str(eval_logs), command, stages)
+    print(f"report: {report}")
+    return report
+
+
+def main(argv: list[str] | None = None) -> str:
+    parser = argparse.ArgumentParser(prog="python -m flows.collect_train_eval", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--preset", default="quick", choices=sorted(PIPELINE_PRESETS), help="run scale")
+    parser.add_argument("--out", default="datasets", help="output folder (default: datasets)")
+    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    args = parser.parse_args(argv)
+    try:
+        if Path(args.out).exists() and not Path(args.out).is_dir():
+            raise ValueError(f"--out {args.out}: exists and is not a folder")
+    except (ConfigError, ValueError) as error:
+        parser.error(str(error))
+    command = shlex.join(["python", "-m", "flows.collect_train_eval", *(sys.argv[1:] if argv is None else argv)])
+    report = collect_train_eval(preset=args.preset, out=args.out, dask_address=dask_address(args.dask_address),
+                                command=command)  # fmt: skip
+    print(json.dumps({"report": report}))
+    return report
+
+
+if __name__ == "__main__":
+    main()

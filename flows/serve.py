@@ -1,0 +1,50 @@
+"""`python -m flows.serve [--out DIR] [--dask-address …]`: serve the collect-train-eval flow as Prefect
+deployments, one per run-scale preset, so that a Prefect server's users can trigger it:
+
+    prefect server start                           # a real server (http://127.0.0.1:4200 by default)
+    export PREFECT_API_URL=http://127.0.0.1:4200/api
+    python -m flows.serve                          # keeps running: it executes the triggered runs
+    prefect deployment run collect-train-eval/quick --watch
+
+The deployments are `collect-train-eval/quick`, `/full` and `/smoke`; parameters can be overridden per run
+(`-p out=/data/dynplan`). This process runs the flows it receives; with a Dask scheduler address the flows'
+collection, conversion and evaluation tasks go to that cluster.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from prefect import serve
+
+from dynplan.pipeline.presets import PIPELINE_PRESETS
+from flows.collect_train_eval import collect_train_eval
+from flows.runners import dask_address
+
+
+def deployments(out: str, address: str | None, presets: list[str]) -> list:
+    """One RunnerDeployment per preset, named after it."""
+    return [
+        collect_train_eval.to_deployment(
+            name=name,
+            parameters={"preset": name, "out": out, "dask_address": address},
+            description=PIPELINE_PRESETS[name].description,
+            tags=["dynplan", name],
+        )
+        for name in presets
+    ]
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(prog="python -m flows.serve", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--out", default="datasets", help="output folder of the runs (default: datasets)")
+    parser.add_argument("--presets", nargs="+", default=sorted(PIPELINE_PRESETS), choices=sorted(PIPELINE_PRESETS))
+    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    parser.add_argument("--limit", type=int, default=1, help="flow runs executed at once (default 1)")
+    args = parser.parse_args(argv)
+    serve(*deployments(args.out, dask_address(args.dask_address), args.presets), limit=args.limit)
+
+
+if __name__ == "__main__":
+    main()

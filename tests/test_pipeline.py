@@ -1,0 +1,114 @@
+"""The collect-train-eval pipeline: presets, an end-to-end run that a rerun serves from its caches, the Prefect
+deployment against a real server, and the same run on a real Dask cluster."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+from dynplan.config import ConfigError
+from dynplan.pipeline.presets import PIPELINE_PRESETS, EvalPlan, PipelinePreset
+
+
+def test_presets_are_valid_data():
+    quick, full = PIPELINE_PRESETS["quick"], PIPELINE_PRESETS["full"]
+    assert quick.pixelcnn_config("default").codebook_size == quick.vqvae_config("default").codebook_size
+    assert full.models == ("default", "paper") and full.pretrained and full.evaluation.episodes == 100
+    assert set(full.evaluation.techniques) >= {"oracle", "mid", "samples5", "samples10"}
+    assert quick.learned_techniques == ("mid",)
+    with pytest.raises(ConfigError, match="unknown techniques"):
+        EvalPlan(techniques=("oracle", "psychic"))
+    with pytest.raises(ConfigError, match=r"train_episodes=2 is invalid.*valid range \[5, 1000000\]"):
+        PipelinePreset(name="x", train_episodes=2)
+    with pytest.raises(ConfigError, match="codebook_size"):
+        PipelinePreset(name="x", train_episodes=5, vqvae={"default": {"overrides": {"codebook_size": 1}}})
+
+
+def test_cli_rejects_an_unknown_preset():
+    result = subprocess.run([sys.executable, "-m", "flows.collect_train_eval", "--preset", "huge"],
+                            capture_output=True, text=True)  # fmt: skip
+    assert result.returncode == 2 and "invalid choice: 'huge'" in result.stderr
+
+
+def _files(folder):
+    return {p: p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+@pytest.mark.slow
+def test_end_to_end_run_writes_the_report_and_reruns_from_cache(tmp_path, prefect_api):
+    from flows.collect_train_eval import collect_train_eval
+
+    report = collect_train_eval(preset="smoke", out=str(tmp_path))
+    work = tmp_path / "smoke"
+    text = (work / "report" / "report.md").read_text()
+    assert report == str(work / "report" / "report.md")
+    for section in ("## Table 1", "| 2× oracle (ours) |", "| 2× mid [default] (ours) |", "![figure 1](figure1.png)",
+                    "| vqvae [default] |", "### pixelcnn `default`", '"codebook_size": 16'):  # fmt: skip
+        assert section in text, section
+    assert "<table>" in (work / "report" / "report.html").read_text()
+    for picture in ("prediction_error.png", "figure1.png", "episode.gif"):
+        assert (work / "report" / picture).stat().st_size > 1000
+    results = sorted((work / "results" / "episodes").rglob("*.json"))
+    assert len(results) == 2  # oracle and mid, one episode each
+    before = _files(work / "checkpoints") | _files(work / "models") | _files(work / "results" / "episodes")
+
+    collect_train_eval(preset="smoke", out=str(tmp_path))
+    after = _files(work / "checkpoints") | _files(work / "models") | _files(work / "results" / "episodes")
+    assert after == before  # nothing retrained, reinstalled or replayed
+    rerun = (work / "report" / "report.md").read_text()
+    assert "| vqvae [default] | " in rerun and "cached, 1 epochs" in rerun and "0 recorded now" in rerun
+
+
+@pytest.mark.slow
+def test_deployment_runs_on_a_real_prefect_server(tmp_path):
+    from dynplan.pipeline.deployment_check import run_check
+
+    report = run_check(tmp_path, "smoke")
+    assert "## Table 1" in report.read_text()
+    assert "Completed" in (tmp_path / "trigger.log").read_text()
+
+
+@pytest.mark.slow
+def test_pipeline_on_a_dask_cluster_equals_a_local_run(tmp_path, dask_cluster, prefect_api):
+    from flows.collect_train_eval import collect_train_eval
+
+    cluster, local = tmp_path / "cluster", tmp_path / "local"
+    collect_train_eval(preset="smoke", out=str(cluster), dask_address=dask_cluster.address)
+    collect_train_eval(preset="smoke", out=str(local))
+    worker_logs = "".join(p.read_text() for p in dask_cluster.logs.glob("worker*.log"))
+    assert "Task run 'evaluate-episode" in worker_logs and "Task run 'inspect-log" in worker_logs
+
+    def outcomes(root):
+        found = {}
+        for path in (root / "smoke" / "results" / "episodes").rglob("*.json"):
+            record = json.loads(path.read_text())
+            found[path.relative_to(root)] = (record["outcome"], record["steps"], record["log_sha256"])
+        return found
+
+    assert outcomes(cluster) == outcomes(local) and len(outcomes(local)) == 2
+    for name in ("vqvae.pt", "pixelcnn.pt"):  # trained locally in both: the same weights from the same data
+        a, b = (torch.load(root / "smoke" / "models" / "default" / name, weights_only=False)["model"]
+                for root in (cluster, local))  # fmt: skip
+        assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_the_readme_main_command_is_the_pipeline():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    main = next(line for line in readme.splitlines() if line.startswith("python3 -m venv .venv && "))
+    assert main.endswith(".venv/bin/python -m flows.collect_train_eval")  # quick preset, ephemeral API, datasets/
+
+
+@pytest.mark.slow
+def test_cli_runs_the_pipeline_on_an_ephemeral_api(tmp_path):
+    import os
+
+    result = subprocess.run([sys.executable, "-m", "flows.collect_train_eval", "--preset", "smoke", "--out",
+                             str(tmp_path)], capture_output=True, text=True, timeout=600,
+                            env={**os.environ, "PREFECT_HOME": str(tmp_path / "prefect")})  # fmt: skip
+    assert result.returncode == 0, result.stderr[-3000:]
+    report = json.loads(result.stdout.strip().splitlines()[-1])["report"]
+    assert report == str(tmp_path / "smoke" / "report" / "report.md")
+    assert "--preset smoke" in Path(report).read_text()  # the report names the command that regenerates it
