@@ -21,35 +21,14 @@ from prefect.context import TaskRunContext
 
 from dynplan.config import ConfigError
 from dynplan.data.codes import build_codes
-from dynplan.data.store import fingerprint, sha256_file
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
 from dynplan.training import checkpoint
 from dynplan.training.checkpoint import digest
 from dynplan.training.loop import TrainBudget
-from dynplan.training.pixelcnn import CODE_VERSION as PIXELCNN_CODE_VERSION
 from dynplan.training.pixelcnn import train_pixelcnn
-from dynplan.training.vqvae import CODE_VERSION as VQVAE_CODE_VERSION
+from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
 from dynplan.training.vqvae import train_vqvae
-
-
-def _run_dir(kind: str, out: str, config: dict, budget: dict, sources: list, code_version: str) -> Path:
-    """Where a training run lives: named by what determines its result (the epoch count excepted)."""
-    determining = {k: v for k, v in budget.items() if k not in ("epochs", "max_minutes", "threads")}
-    if determining.get("init_from"):  # a warm start is identified by the weights it starts from, not their path
-        determining["init_from"] = sha256_file(determining["init_from"])
-    key = digest(*sources, config, determining, code_version)
-    return Path(out) / f"{kind}-{config['name']}-{key[:12]}"
-
-
-def vqvae_run_dir(store: str, out: str, config: dict, budget: dict) -> Path:
-    return _run_dir("vqvae", out, config, budget, [fingerprint(store)], VQVAE_CODE_VERSION)
-
-
-def pixelcnn_run_dir(store: str, codes: str, out: str, config: dict, budget: dict) -> Path:
-    attrs = zarr.open_group(store, mode="r", use_consolidated=False)[codes].attrs
-    sources = [fingerprint(store), attrs["source_digest"], attrs["checkpoint_sha256"]]
-    return _run_dir("pixelcnn", out, config, budget, sources, PIXELCNN_CODE_VERSION)
 
 
 def _finished_key(run_dir: Path, kind: str, epochs: int) -> str | None:
@@ -130,13 +109,15 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--steps-per-epoch", type=int, default=TrainBudget().steps_per_epoch)
     parser.add_argument("--max-minutes", type=float, help="stop after this long (resumable)")
     parser.add_argument("--threads", type=int, help="torch threads (default: all cores)")
+    parser.add_argument("--device", help="torch device to train on, e.g. cuda (default: the CPU); same run folder")
     parser.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (same architecture)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
     args = parser.parse_args(argv)
     try:
         overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
         budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
-                             threads=args.threads, init_from=args.init_from).model_dump()  # fmt: skip
+                             threads=args.threads, init_from=args.init_from,
+                             device=args.device).model_dump()  # fmt: skip
         if args.stage == "vqvae":
             VQVAEConfig(**{**PRESETS[args.model].model_dump(), **overrides})
         else:

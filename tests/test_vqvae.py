@@ -222,3 +222,24 @@ def test_fields_added_later_keep_earlier_configs_keys():
     assert PRESETS["default"].model_dump()["goal_weight"] == 10.0
     assert digest(PRESETS["paper"].model_dump())[:12] == "70ed61fd9765"  # as before goal_weight existed
     assert "init_from" not in TrainBudget().model_dump()
+
+
+def test_the_training_device_is_validated_and_names_no_new_run(store):
+    from dynplan.training.runs import vqvae_run_dir
+
+    with pytest.raises(ConfigError, match=r"device.*unknown torch device 'warp-drive'"):
+        TrainBudget(device="warp-drive")
+    assert "device" not in TrainBudget().model_dump()  # neutral: existing run keys hold
+    config, budget = TINY.model_dump(), TrainBudget(epochs=2).model_dump()
+    elsewhere = TrainBudget(epochs=9, threads=1, max_minutes=5, device="cpu").model_dump()
+    assert vqvae_run_dir(store, "runs", config, budget) == vqvae_run_dir(store, "runs", config, elsewhere)
+
+
+def test_checkpoints_hold_cpu_tensors_whatever_the_device(tmp_path, store):
+    budget = TrainBudget(epochs=1, steps_per_epoch=2, val_frames=8, threads=1, device="cpu")
+    train_vqvae(store, tmp_path, TINY, budget)
+    state = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    tensors = [v for v in state["model"].values()] + [
+        t for s in state["optimiser"]["state"].values() for t in s.values() if isinstance(t, torch.Tensor)
+    ]
+    assert tensors and all(t.device.type == "cpu" for t in tensors)

@@ -38,9 +38,10 @@ class PixelCNNConfig(Config):
 
 
 PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
-    # Priors for the two tokenizers (K follows each one's codebook), sized for CPU training: 64 channels × 8 layers.
-    "paper": PixelCNNConfig(name="paper", codebook_size=512),
-    "default": PixelCNNConfig(name="default", codebook_size=4096),
+    # Priors for the two tokenizers (K follows each one's codebook), sized so that planning samples them fast on a
+    # CPU: 64 channels × 8 layers. Batches of 256 at rate 1e-3 (the committed ones trained on a GPU, `--device`).
+    "paper": PixelCNNConfig(name="paper", codebook_size=512, batch_size=256, learning_rate=1e-3),
+    "default": PixelCNNConfig(name="default", codebook_size=4096, batch_size=256, learning_rate=1e-3),
     # The reference's size: 15 layers of 256 channels, a 7 × 7 first kernel, then 3 × 3.
     "reference": PixelCNNConfig(name="reference", codebook_size=512, channels=256, layers=15, condition_channels=256),
 }

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import torch
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from dynplan.config import Config
 from dynplan.files import write_bytes_atomic
@@ -34,8 +34,23 @@ class TrainBudget(Config):
     threads: int | None = Field(None, ge=1, le=256, description="torch threads (default: all cores)")
     seed: int = Field(0, ge=0, description="seed of initialisation and batch order")
     init_from: str | None = Field(None, description="checkpoint whose model weights start the run (fine-tuning)")
+    device: str | None = Field(None, description="torch device to train on, e.g. 'cuda' (default: the CPU)")
 
-    _neutral = {"init_from": None}
+    _neutral = {"init_from": None, "device": None}
+
+    @field_validator("device")
+    @classmethod
+    def _known_device(cls, value: str | None) -> str | None:
+        if value is not None:
+            try:
+                torch.device(value)
+            except RuntimeError:
+                raise ValueError(f"unknown torch device {value!r} (e.g. 'cpu', 'cuda', 'cuda:1')") from None
+        return value
+
+    @property
+    def torch_device(self) -> torch.device:
+        return torch.device(self.device or "cpu")
 
 
 @dataclass
@@ -120,8 +135,8 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
             **stage.evaluate(),
         }
         history.append(row)
-        checkpoint.save(latest, {"kind": stage.kind, "config": stage.config, "model": stage.model.state_dict(),
-                                 "optimiser": stage.optimiser.state_dict(), "epoch": epoch, "elapsed_s": elapsed,
+        checkpoint.save(latest, {"kind": stage.kind, "config": stage.config, "model": _cpu(stage.model.state_dict()),
+                                 "optimiser": _cpu(stage.optimiser.state_dict()), "epoch": epoch, "elapsed_s": elapsed,
                                  "history": history, "torch_rng": torch.get_rng_state(),
                                  "init_from": budget.init_from})  # fmt: skip
         write_csv(out_dir / "metrics.csv", history)
@@ -135,6 +150,17 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
     kept = ("kind", "config", "model", "epoch", "elapsed_s", "history", "init_from")
     checkpoint.save(final, {key: state.get(key) for key in kept})
     return final
+
+
+def _cpu(state):
+    """`state` with every tensor on the CPU: a checkpoint written on an accelerator loads anywhere."""
+    if isinstance(state, torch.Tensor):
+        return state.cpu()
+    if isinstance(state, dict):
+        return {k: _cpu(v) for k, v in state.items()}
+    if isinstance(state, list | tuple):
+        return type(state)(_cpu(v) for v in state)
+    return state
 
 
 def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:

@@ -7,6 +7,7 @@ prediction with the VQ-VAE that made the codes — the next frame's pixel errors
 
 from __future__ import annotations
 
+import copy
 import os
 from collections.abc import Callable
 from pathlib import Path
@@ -45,7 +46,8 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     if tokenizer.config.codebook_size != config.codebook_size:
         raise ValueError(f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
                          f"for codebook_size={config.codebook_size}")  # fmt: skip
-    model = ConditionalPixelCNN(config)
+    device = budget.torch_device
+    model = ConditionalPixelCNN(config).to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train_set = WindowDataset(store, "train", array=codes)
     if len(train_set.episodes) == 0:
@@ -58,7 +60,8 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
         s = torch.randint(0, T - CONTEXT, (config.batch_size,), generator=generator).numpy()
         window = grids[e[:, None], s[:, None] + np.arange(CONTEXT + 1)].astype(np.int64)  # (B, 5, h, w)
-        out = model(torch.from_numpy(window[:, :CONTEXT]), torch.from_numpy(window[:, CONTEXT]))
+        window = torch.from_numpy(window).to(device, non_blocking=True)
+        out = model(window[:, :CONTEXT], window[:, CONTEXT])
         optimiser.zero_grad(set_to_none=True)
         out.loss.backward()
         optimiser.step()
@@ -71,10 +74,12 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         loss = accuracy = 0.0
         with torch.inference_mode():
             for i in range(0, len(val_target), 256):  # chunks: the logits of all windows at once are large
-                out = model(val_context[i : i + 256], val_target[i : i + 256])
+                out = model(val_context[i : i + 256].to(device), val_target[i : i + 256].to(device))
                 loss += out.loss.item() * len(out.logits)
                 accuracy += out.accuracy.item() * len(out.logits)
-            predicted = generate_fast(model, val_context[generated])
+            # Generation is the planner's CPU path (numba rows): score that, on a CPU copy when training elsewhere.
+            on_cpu = model if device.type == "cpu" else copy.deepcopy(model).cpu()
+            predicted = generate_fast(on_cpu, val_context[generated])
             frames = tokenizer.decode(predicted).numpy()
         model.train()
         errors = frame_errors(val_frames[generated], frames)

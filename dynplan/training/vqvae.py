@@ -40,12 +40,13 @@ def _validation_frames(store: str, n: int) -> np.ndarray:
 def evaluate(model: VQVAE, frames: np.ndarray, batch: int = 256) -> dict[str, float]:
     """Reconstruction errors of `model` on uint8 `frames` (mid-point decoding), plus codebook use."""
     model.eval()
+    device = next(model.parameters()).device
     decoded, codes = [], []
     for i in range(0, len(frames), batch):
-        x = torch.from_numpy(frames[i : i + batch])
+        x = torch.from_numpy(frames[i : i + batch]).to(device)
         c = model.encode(x)
-        codes.append(c.reshape(len(x), -1, model.config.n_codebooks))
-        decoded.append(model.decode(c).numpy())
+        codes.append(c.reshape(len(x), -1, model.config.n_codebooks).cpu())
+        decoded.append(model.decode(c).cpu().numpy())
     model.train()
     per_codebook = torch.cat(codes).flatten(0, 1).t()  # (n, codes)
     counts = torch.stack([torch.bincount(c, minlength=model.config.codebook_size) for c in per_codebook]).double()
@@ -68,7 +69,8 @@ def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 
 
     picks = frames[np.linspace(0, len(frames) - 1, n).astype(int)]
     model.eval()
-    decoded = model.decode(model.encode(torch.from_numpy(picks))).numpy()
+    device = next(model.parameters()).device
+    decoded = model.decode(model.encode(torch.from_numpy(picks).to(device))).cpu().numpy()
     model.train()
     fig, axes = plt.subplots(3, n, figsize=(2 * n, 6.4))
     for j in range(n):
@@ -97,18 +99,19 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
     done = loop.begin(out_dir, KIND, config.model_dump(), budget)
     if done is not None:
         return done
-    model = VQVAE(config)
+    device = budget.torch_device
+    model = VQVAE(config).to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train = FrameDataset(store, "train" if len(FrameDataset(store, "train").episodes) else "all")
     frames = np.stack([train.array[int(e)] for e in train.episodes])  # (E, T, H, W) in memory, read once
     E, T = frames.shape[:2]
     val = _validation_frames(store, budget.val_frames)
-    counts = torch.zeros(config.n_codebooks, config.codebook_size)
+    counts = torch.zeros(config.n_codebooks, config.codebook_size, device=device)
 
     def step(generator: torch.Generator) -> dict[str, float]:
         e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
         t = torch.randint(0, T, (config.batch_size,), generator=generator).numpy()
-        out = model(torch.from_numpy(frames[e, t]))
+        out = model(torch.from_numpy(frames[e, t]).to(device, non_blocking=True))
         loss = sum(out.losses.values())
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
