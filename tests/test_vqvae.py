@@ -243,3 +243,19 @@ def test_checkpoints_hold_cpu_tensors_whatever_the_device(tmp_path, store):
         t for s in state["optimiser"]["state"].values() for t in s.values() if isinstance(t, torch.Tensor)
     ]
     assert tensors and all(t.device.type == "cpu" for t in tensors)
+
+
+@pytest.mark.parametrize(
+    ("model", "grid", "max_fn", "min_goals"), [("default", 12, 0.01, 0.95), ("paper", 6, 0.35, 0.3)]
+)
+def test_committed_weights_reconstruct_held_out_frames(model, grid, max_fn, min_goals):
+    from dynplan.evaluation.protocol import EVAL_SEED_START
+    from dynplan.models import load_vqvae
+    from dynplan.models.metrics import frame_errors
+
+    tokenizer = load_vqvae(model=model)
+    frames = generate_world(RoadConfig(agent_speed=0.5), EVAL_SEED_START + 1).frames[:200]
+    codes = tokenizer.encode(torch.from_numpy(frames))
+    assert codes.shape == (200, grid, grid)
+    errors = frame_errors(frames, tokenizer.decode(codes).numpy())
+    assert errors["fn_rate"] < max_fn and errors["goal_exact"] >= min_goals, errors

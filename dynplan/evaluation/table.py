@@ -64,6 +64,13 @@ def _cell(g, t, d, s_mean, s_std) -> str:
     return f"{g}/{t}/{d}, {s}"
 
 
+def _ms(value: float | None) -> str:
+    """A decision time for the table: three significant digits, whole milliseconds from 100 on."""
+    if value is None:
+        return ""
+    return f"{value:.3g}" if value < 100 else f"{value:.0f}"
+
+
 def render_markdown(rows: list[dict]) -> str:
     """The table in the paper's layout: one line per technique and speed, a cell per rollout length."""
     ks = sorted({r["rollout_steps"] for r in rows if r["rollout_steps"] is not None})
@@ -84,13 +91,13 @@ def render_markdown(rows: list[dict]) -> str:
             note = f" (paper: {paper} goals)" if paper is not None else ""
             cell = _cell(r0["G"], r0["T"], r0["D"], r0["S_mean"], r0["S_std"]) + note
             lines.append(f"| {label} | " + " | ".join([cell] + ["″"] * (len(ks) - 1)) +
-                         f" | {r0['decision_ms_median']} |")  # fmt: skip
+                         f" | {_ms(r0['decision_ms_median'])} |")  # fmt: skip
             continue
         cells, paper_cells, times = [], [], []
         for k in ks:
             row = by_key.get((technique, model, speed, k))
             cells.append(_cell(row["G"], row["T"], row["D"], row["S_mean"], row["S_std"]) if row else "")
-            times.append(f"{row['decision_ms_median']}" if row else "")
+            times.append(_ms(row["decision_ms_median"]) if row else "")
             paper = PAPER_TABLE1.get((technique, speed, k))
             paper_cells.append(_cell(*paper) if paper else "")
         lines.append(f"| {label} (ours) | " + " | ".join(cells) + " | " + " / ".join(t for t in times if t) + " |")
