@@ -62,29 +62,38 @@ def _trained(run_dir: Path, kind: str, epochs: int) -> bool:
 @task(name="world-model", cache_policy=NO_CACHE)
 def world_model_task(preset: dict, model: str, store: str, work: str) -> list[dict]:
     """Train (or reuse) both stages of configuration `model`, install them in `work/models/<model>/`; return
-    what happened per stage."""
+    what happened per stage. With `pretrained`, a stage whose committed weights exist uses them (a committed
+    tokenizer without a committed prior: the prior trains on the store encoded by it)."""
     plan = PipelinePreset(**preset)
     target = Path(work) / "models" / model
+    committed = {stage: pretrained_path(stage, model) for stage in ("vqvae", "pixelcnn")}
+    use = {stage: plan.pretrained and path.exists() for stage, path in committed.items()}
+    use["pixelcnn"] = use["pixelcnn"] and use["vqvae"]  # a committed prior reads only its own tokenizer's codes
     records = []
-    if plan.pretrained and all(pretrained_path(s, model).exists() for s in ("vqvae", "pixelcnn")):
-        for stage in ("vqvae", "pixelcnn"):
-            _install(pretrained_path(stage, model), target / f"{stage}.pt")
-            records.append({"name": f"{stage} [{model}]", "wall_s": 0.0, "detail": "committed weights"})
-        return records
     out = str(Path(work) / "checkpoints")
-    vq_config, vq_budget = plan.vqvae_config(model).model_dump(), plan.vqvae_plan(model).budget.model_dump()
-    cached = _trained(vqvae_run_dir(store, out, vq_config, vq_budget), "vqvae", vq_budget["epochs"])
     start = time.perf_counter()
-    vqvae = train_vqvae_task(store, out, vq_config, vq_budget)
-    codes = build_codes_task(store, vqvae, f"codes_{model}")
-    detail = ("cached" if cached else "trained") + f", {vq_budget['epochs']} epochs; store encoded"
-    records.append({"name": f"vqvae [{model}]", "wall_s": time.perf_counter() - start, "detail": detail})
-    px_config, px_budget = plan.pixelcnn_config(model).model_dump(), plan.pixelcnn_plan(model).budget.model_dump()
-    cached = _trained(pixelcnn_run_dir(store, codes, out, px_config, px_budget), "pixelcnn", px_budget["epochs"])
-    start = time.perf_counter()
-    prior = train_pixelcnn_task(store, codes, out, px_config, px_budget)
-    detail = ("cached" if cached else "trained") + f", {px_budget['epochs']} epochs"
-    records.append({"name": f"pixelcnn [{model}]", "wall_s": time.perf_counter() - start, "detail": detail})
+    if use["vqvae"]:
+        vqvae, detail = str(committed["vqvae"]), "committed weights"
+    else:
+        vq_config, vq_budget = plan.vqvae_config(model).model_dump(), plan.vqvae_plan(model).budget.model_dump()
+        cached = _trained(vqvae_run_dir(store, out, vq_config, vq_budget), "vqvae", vq_budget["epochs"])
+        vqvae = train_vqvae_task(store, out, vq_config, vq_budget)
+        detail = ("cached" if cached else "trained") + f", {vq_budget['epochs']} epochs"
+    if use["pixelcnn"]:
+        prior = str(committed["pixelcnn"])
+        records.append({"name": f"vqvae [{model}]", "wall_s": time.perf_counter() - start, "detail": detail})
+        records.append({"name": f"pixelcnn [{model}]", "wall_s": 0.0, "detail": "committed weights"})
+    else:  # the prior trains on the store encoded by this tokenizer
+        codes = build_codes_task(store, vqvae, model)
+        records.append({"name": f"vqvae [{model}]", "wall_s": time.perf_counter() - start,
+                        "detail": detail + "; store encoded"})  # fmt: skip
+        px_config, px_budget = plan.pixelcnn_config(model).model_dump(), plan.pixelcnn_plan(model).budget.model_dump()
+        px_config["codebook_size"] = checkpoints.load(vqvae, "vqvae")["config"]["codebook_size"]  # K follows it
+        cached = _trained(pixelcnn_run_dir(store, codes, out, px_config, px_budget), "pixelcnn", px_budget["epochs"])
+        start = time.perf_counter()
+        prior = train_pixelcnn_task(store, codes, out, px_config, px_budget)
+        detail = ("cached" if cached else "trained") + f", {px_budget['epochs']} epochs"
+        records.append({"name": f"pixelcnn [{model}]", "wall_s": time.perf_counter() - start, "detail": detail})
     _install(Path(vqvae), target / "vqvae.pt")
     _install(Path(prior), target / "pixelcnn.pt")
     return records

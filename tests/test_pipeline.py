@@ -112,3 +112,21 @@ def test_cli_runs_the_pipeline_on_an_ephemeral_api(tmp_path):
     report = json.loads(result.stdout.strip().splitlines()[-1])["report"]
     assert report == str(tmp_path / "smoke" / "report" / "report.md")
     assert "--preset smoke" in Path(report).read_text()  # the report names the command that regenerates it
+
+
+@pytest.mark.slow
+def test_pretrained_run_uses_the_committed_tokenizer_and_trains_its_prior(tmp_path, prefect_api, monkeypatch):
+    from dynplan.data.store import sha256_file
+    from dynplan.models import pretrained_path
+    from flows import collect_train_eval as pipeline
+
+    smoke = PIPELINE_PRESETS["smoke"]
+    monkeypatch.setitem(PIPELINE_PRESETS, "smoke", smoke.model_copy(update={"pretrained": True}))
+    monkeypatch.setattr(pipeline, "pretrained_path", lambda stage, model: (
+        pretrained_path(stage, model) if stage == "vqvae" else tmp_path / "no-such-prior.pt"))  # fmt: skip
+    pipeline.collect_train_eval(preset="smoke", out=str(tmp_path))
+    models = tmp_path / "smoke" / "models" / "default"
+    assert sha256_file(models / "vqvae.pt") == sha256_file(pretrained_path("vqvae", "default"))
+    prior = torch.load(models / "pixelcnn.pt", weights_only=False)
+    assert prior["config"]["codebook_size"] == 4096 and prior["config"]["channels"] == 8  # K from the tokenizer
+    assert "| vqvae [default] | " in (tmp_path / "smoke" / "report" / "report.md").read_text()
