@@ -259,3 +259,43 @@ def test_committed_weights_reconstruct_held_out_frames(model, grid, max_fn, min_
     assert codes.shape == (200, grid, grid)
     errors = frame_errors(frames, tokenizer.decode(codes).numpy())
     assert errors["fn_rate"] < max_fn and errors["goal_exact"] >= min_goals, errors
+
+
+def test_an_interrupted_encoding_resumes_after_its_last_batch(tmp_path, store, monkeypatch):
+    import shutil
+
+    import dask.array as da
+    import zarr
+
+    from dynplan.data import codes as codes_module
+
+    local = tmp_path / "frames.zarr"
+    shutil.copytree(store, local)
+    path = train_vqvae(
+        local, tmp_path / "run", TINY, TrainBudget(epochs=1, steps_per_epoch=2, val_frames=20, threads=1)
+    )
+    real_store, calls = da.store, []
+
+    def store_twice_then_fail(*args, **kwargs):
+        calls.append(kwargs["regions"][0])
+        if len(calls) > 2:
+            raise KeyboardInterrupt
+        return real_store(*args, **kwargs)
+
+    monkeypatch.setattr(codes_module.da, "store", store_twice_then_fail)
+    with pytest.raises(KeyboardInterrupt):
+        codes_module.build_codes(local, path, "tiny", batch=2)
+    partial = zarr.open_group(str(local), mode="r", use_consolidated=False)["codes_tiny"]
+    assert partial.attrs["episodes"] == 4  # two batches of 2 kept
+    encoded = []
+    monkeypatch.setattr(
+        codes_module.da, "store", lambda *a, **k: encoded.append(k["regions"][0]) or real_store(*a, **k)
+    )
+    codes_module.build_codes(local, path, "tiny", batch=2)
+    assert encoded == [slice(4, 6)]  # only the batch that was interrupted
+    group = zarr.open_group(str(local), mode="r")
+    model = load_vqvae_checkpoint(path)
+    for e in (1, 5):
+        np.testing.assert_array_equal(
+            group["codes_tiny"][e], model.encode(torch.from_numpy(group["frames"][e])).numpy()
+        )

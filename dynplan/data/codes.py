@@ -21,6 +21,7 @@ import torch
 import zarr
 
 from dynplan.data.store import committed_checksums, sha256_file
+from dynplan.progress import progress
 
 
 @functools.lru_cache(maxsize=4)
@@ -42,8 +43,9 @@ def _digest(checksums: list[str]) -> str:
     return hashlib.sha256("".join(checksums).encode()).hexdigest()
 
 
-def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: str) -> str:
-    """Encode the store's frames with the VQ-VAE in `checkpoint` into the array `codes_<name>`; returns its name."""
+def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: str, batch: int = 100) -> str:
+    """Encode the store's frames with the VQ-VAE in `checkpoint` into the array `codes_<name>`, `batch` episodes
+    at a time; returns its name."""
     store, checkpoint = str(store), str(Path(checkpoint).resolve())
     model = _model(checkpoint)
     h, w = model.config.grid
@@ -68,11 +70,15 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         group.create_array(array_name, shape=(0, T, *code_shape), chunks=(1, T, *code_shape), dtype="uint16",
                            dimension_names=dims)  # fmt: skip
     codes = group[array_name]
-    if done < E:
-        codes.resize((E, T, *code_shape))
-        source = da.from_zarr(frames)[done:E]
+    codes.resize((E, T, *code_shape))
+    # In batches, each recorded as done once stored: an interrupted encoding resumes after the last batch.
+    for start in progress(range(done, E, batch), total=len(range(done, E, batch)), description=array_name):
+        stop = min(E, start + batch)
+        source = da.from_zarr(frames)[start:stop]
         encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, *code_shape))
-        da.store(encoded, codes, regions=(slice(done, E),), lock=False)
+        da.store(encoded, codes, regions=(slice(start, stop),), lock=False)
+        codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(),
+                           episodes=stop, source_digest=_digest(checksums[:stop]))  # fmt: skip
     codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(), episodes=E,
                        source_digest=_digest(checksums))  # fmt: skip
     with warnings.catch_warnings():
