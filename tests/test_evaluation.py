@@ -199,11 +199,20 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
         Case("oracle", 1.0, 3, 0, "default")
 
 
-def test_replay_with_the_learned_model_names_missing_checkpoints(eval_logs):
-    from dynplan.models import pretrained_path
+def test_replay_with_the_learned_model_names_missing_checkpoints(eval_logs, tmp_path):
     from dynplan.training.checkpoint import CheckpointError
 
-    if pretrained_path("pixelcnn", "paper").exists():
-        pytest.skip("pretrained world model present")
-    with pytest.raises(CheckpointError, match="no world model checkpoints"):
-        replay(log_path(eval_logs, EVAL_SEED_START), "model", model="paper")
+    with pytest.raises(CheckpointError, match=r"no world model checkpoints at .*paper/vqvae.pt"):
+        replay(log_path(eval_logs, EVAL_SEED_START), "model", model="paper", model_dir=str(tmp_path))
+
+
+def test_replay_plans_with_the_committed_paper_world_model(eval_logs, tmp_path):
+    from dynplan.models import pretrained_path
+
+    if not pretrained_path("pixelcnn", "paper").exists():
+        pytest.skip("no committed paper prior")
+    result = replay(log_path(eval_logs, EVAL_SEED_START), "model", model="paper", samples=5, rollout_steps=1,
+                    playouts=20, out=tmp_path / "replay.mcap")  # fmt: skip
+    assert result.outcome in ("goal", "death", "timeout") and result.steps > 0
+    replayed = read_episode_log(tmp_path / "replay.mcap")
+    assert len(replayed.imagined) == result.steps and next(iter(replayed.imagined.values())).shape == (1, 48, 48)
