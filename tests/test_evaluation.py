@@ -65,7 +65,9 @@ def test_aggregate_counts_outcomes_and_steps_over_survivors():
     assert row["decision_ms_median"] == 2.0
     table = render_markdown(rows)
     assert "| 2× oracle (ours) | " in table and "| 2× oracle (paper) | " in table
-    assert "2/1/1, 79 ± 84" in table and "100/0/0, 36 ± 18" in table
+    assert "2/1/1, 79 ± 84" in table and "100/0/0, 36 ± 18" in table and "so far" not in table
+    table = render_markdown(aggregate([result("goal", 10, k=1), result("goal", 12, k=1), result("goal", 20)]))
+    assert "| 2/0/0, 11 ± 1 | 1/0/0, 20 ± 0 (of 1 so far) |" in table  # a case still being played says so
 
 
 def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path, eval_logs, prefect_api):

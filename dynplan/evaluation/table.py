@@ -75,6 +75,7 @@ def render_markdown(rows: list[dict]) -> str:
     """The table in the paper's layout: one line per technique and speed, a cell per rollout length."""
     ks = sorted({r["rollout_steps"] for r in rows if r["rollout_steps"] is not None})
     by_key = {(r["technique"], r.get("model"), r["agent_speed"], r["rollout_steps"]): r for r in rows}
+    full = max((r["episodes"] for r in rows), default=0)  # a case still being played has fewer: say so
     header = "| technique | " + " | ".join(f"k = {k}: G/T/D, S" for k in ks) + " | decision ms (median) |"
     lines = [header, "|" + " --- |" * (len(ks) + 2)]
     seen = []
@@ -96,7 +97,8 @@ def render_markdown(rows: list[dict]) -> str:
         cells, paper_cells, times = [], [], []
         for k in ks:
             row = by_key.get((technique, model, speed, k))
-            cells.append(_cell(row["G"], row["T"], row["D"], row["S_mean"], row["S_std"]) if row else "")
+            partial = f" (of {row['episodes']} so far)" if row and row["episodes"] < full else ""
+            cells.append(_cell(row["G"], row["T"], row["D"], row["S_mean"], row["S_std"]) + partial if row else "")
             times.append(_ms(row["decision_ms_median"]) if row else "")
             paper = PAPER_TABLE1.get((technique, speed, k))
             paper_cells.append(_cell(*paper) if paper else "")
