@@ -71,16 +71,19 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
                            dimension_names=dims)  # fmt: skip
     codes = group[array_name]
     codes.resize((E, T, *code_shape))
+
+    def record(stop: int) -> None:  # the first `stop` episodes are encoded, by this checkpoint, from these logs
+        codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(),
+                           episodes=stop, source_digest=_digest(checksums[:stop]))  # fmt: skip
+
     # In batches, each recorded as done once stored: an interrupted encoding resumes after the last batch.
     for start in progress(range(done, E, batch), total=len(range(done, E, batch)), description=array_name):
         stop = min(E, start + batch)
         source = da.from_zarr(frames)[start:stop]
         encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, *code_shape))
         da.store(encoded, codes, regions=(slice(start, stop),), lock=False)
-        codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(),
-                           episodes=stop, source_digest=_digest(checksums[:stop]))  # fmt: skip
-    codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(), episodes=E,
-                       source_digest=_digest(checksums))  # fmt: skip
+        record(stop)
+    record(E)
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
         zarr.consolidate_metadata(store)
