@@ -22,8 +22,7 @@ def _ms_per_frame(generate: Callable, prior: ConditionalPixelCNN, tokenizer: VQV
     start = time.perf_counter()
     for _ in range(frames):
         codes = generate(prior, context)
-        tokenizer.decode(codes)
-        tokenizer.decode_samples(codes, samples)
+        tokenizer.decode_with_samples(codes, samples)
         context = torch.cat([context[:, 1:], codes[:, None]], dim=1)  # chain: the prediction joins the context
     return (time.perf_counter() - start) * 1e3 / frames
 

@@ -185,5 +185,14 @@ class VQVAE(nn.Module):
     @torch.inference_mode()
     def decode_samples(self, codes: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
         """codes (N, …) → n samples per frame from the pixel likelihood: uint8 (n, N, H, W)."""
+        return self.decode_with_samples(codes, n, generator)[1]
+
+    @torch.inference_mode()
+    def decode_with_samples(self, codes: torch.Tensor, n: int,
+                            generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+        """codes (N, …) → the mid-point frames (N, H, W) and n samples per frame (n, N, H, W), uint8, from one
+        pass of the decoder (what the planner's *N samples* variants need)."""
         params = self.decode_params(codes)
-        return torch.stack([self.pixel.sample(params, generator) for _ in range(n)])
+        samples = [self.pixel.sample(params, generator) for _ in range(n)]
+        empty = torch.empty(0, *params.shape[:1], *params.shape[2:], dtype=torch.uint8)
+        return self.pixel.mid(params), torch.stack(samples) if samples else empty

@@ -83,10 +83,8 @@ class LearnedWorldModel:
         model's) and with the mid-points of the model's sampled futures."""
         samples = self.samples if samples is None else samples
         codes = self.predict_codes(observed, k)[0]
-        mid = self.tokenizer.decode(codes).numpy()
-        others = []
-        if samples:
-            others.append(self.tokenizer.decode_samples(codes, samples, self.generator).numpy())
+        mid, decoded_samples = self.tokenizer.decode_with_samples(codes, samples, self.generator)
+        mid, others = mid.numpy(), [decoded_samples.numpy()] if samples else []
         if self.futures:
             sampled = self.predict_codes(observed, k, self.futures, temperature=1.0)
             others.append(self.tokenizer.decode(sampled.flatten(0, 1)).numpy().reshape(self.futures, k, *mid.shape[1:]))
