@@ -13,6 +13,7 @@ import shlex
 import sys
 from dataclasses import asdict
 
+import torch
 from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
@@ -39,6 +40,8 @@ from flows.collect import collect_episodes
 from flows.runners import dask_address, task_runner
 
 DEFAULT_COMMAND = "python -m flows.evaluate"
+#: Episodes between rewrites of the table while an evaluation runs.
+TABLE_EVERY = 25
 
 
 @task(name="evaluate-episode", cache_policy=NO_CACHE)
@@ -62,8 +65,10 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
     print(f"{len(todo)} episodes to play")
     futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
                                      unmapped(playouts), unmapped(model_dir))  # fmt: skip
-    for future in progress(as_completed(futures), total=len(futures), description="evaluate"):
+    for done, future in enumerate(progress(as_completed(futures), total=len(futures), description="evaluate"), 1):
         future.result()
+        if done % TABLE_EVERY == 0:  # a long evaluation that is stopped still leaves an up-to-date table
+            write_table(aggregate(load_results(results_dir)), results_dir, command)
     rows = aggregate(load_results(results_dir))
     write_table(rows, results_dir, command)
     print("\n" + render_markdown(rows))
@@ -98,6 +103,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     except ConfigError as error:
         parser.error(str(error))
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
+    if not dask_address(args.dask_address):
+        torch.set_num_threads(1)  # the local pool plays one episode per core; more torch threads only contend
     rows = evaluate_planner.with_options(task_runner=task_runner(dask_address(args.dask_address)))(
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,

@@ -171,7 +171,7 @@ def _add_scaled(acc, weights, x):
                 acc[o] += row[o] * value
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)  # episodes on a thread pool generate in parallel
 def _greedy_grid(cond_v, cond_h, v_offsets, v_weight, v_taps, v_bias, v2h_weight, v2h_bias, h_offsets,
                  h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1, w2, b2, embed):  # fmt: skip
     """Greedy generation of whole code grids (compiled): vertical stacks row by row, horizontal stacks and the

@@ -111,7 +111,7 @@ def _terminal_value(outcome, t_abs, max_steps):
     return REWARD_GOAL - 10.0 * t_abs / max_steps
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)  # episodes on a thread pool search in parallel
 def _playouts(child, visits, value, prior, position, depth, n_nodes, frames, horizon, goal_y, goal_x, t0,
               max_steps, deltas, angles, weights, c_puct, random_actions):  # fmt: skip
     """Run len(random_actions) playouts from node 0; returns the new node count."""
