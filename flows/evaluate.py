@@ -92,6 +92,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
     parser.add_argument("--results-dir", default="datasets/results", help="per-episode results and the table")
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    parser.add_argument("--workers", type=int, help="episodes played at once locally (default: one per core)")
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     args = parser.parse_args(argv)
     try:  # the configs' own validation, before any flow machinery starts
@@ -102,10 +103,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
         CollectPlan(episodes=args.episodes, seed=EVAL_SEED_START)
     except ConfigError as error:
         parser.error(str(error))
+    if args.workers is not None and not 1 <= args.workers <= 256:
+        parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
     if not dask_address(args.dask_address):
         torch.set_num_threads(1)  # the local pool plays one episode per core; more torch threads only contend
-    rows = evaluate_planner.with_options(task_runner=task_runner(dask_address(args.dask_address)))(
+    runner = task_runner(dask_address(args.dask_address), args.workers)
+    rows = evaluate_planner.with_options(task_runner=runner)(
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models,

@@ -17,13 +17,13 @@ def dask_address(cli_value: str | None = None) -> str | None:
     return cli_value or os.environ.get(DASK_ADDRESS_ENV) or None
 
 
-def task_runner(address: str | None):
-    """A DaskTaskRunner on `address`, or a local thread pool with one worker per core."""
+def task_runner(address: str | None, workers: int | None = None):
+    """A DaskTaskRunner on `address`, or a local thread pool of `workers` threads (default: one per core)."""
     if address:
         from prefect_dask import DaskTaskRunner
 
         return DaskTaskRunner(address=address)
-    return ThreadPoolTaskRunner(max_workers=os.cpu_count() or 1)
+    return ThreadPoolTaskRunner(max_workers=workers or os.cpu_count() or 1)
 
 
 @contextmanager

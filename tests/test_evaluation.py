@@ -218,3 +218,11 @@ def test_replay_plans_with_the_committed_paper_world_model(eval_logs, tmp_path):
     assert result.outcome in ("goal", "death", "timeout") and result.steps > 0
     replayed = read_episode_log(tmp_path / "replay.mcap")
     assert len(replayed.imagined) == result.steps and next(iter(replayed.imagined.values())).shape == (1, 48, 48)
+
+
+def test_evaluate_command_line_names_a_bad_worker_count(capsys):
+    from flows.evaluate import main
+
+    with pytest.raises(SystemExit):
+        main(["--workers", "0"])
+    assert "--workers=0 is invalid; valid range [1, 256]" in capsys.readouterr().err

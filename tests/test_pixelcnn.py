@@ -97,6 +97,16 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     wrong_k = SMALL.model_copy(update={"codebook_size": 32})
     with pytest.raises(ValueError, match="holds codes of K=16"):
         train_pixelcnn(store, "codes_tiny", tmp_path / "other", wrong_k, TrainBudget(epochs=1, steps_per_epoch=1))
+    assert history[-1]["learning_rate"] == pytest.approx(config.learning_rate)  # an epoch mean
+    # A half-life of 4 batches: the rate of the first epoch's batches averages below the initial one, the next
+    # epoch's (resumed from the checkpoint) lower still.
+    decaying = config.model_copy(update={"learning_rate_halflife": 4 * 16})
+    path = train_pixelcnn(store, "codes_tiny", tmp_path / "decaying", decaying,
+                          TrainBudget(epochs=1, steps_per_epoch=4, val_frames=8, threads=1))  # fmt: skip
+    path = train_pixelcnn(store, "codes_tiny", tmp_path / "decaying", decaying,
+                          TrainBudget(epochs=2, steps_per_epoch=4, val_frames=8, threads=1))  # fmt: skip
+    rates = [row["learning_rate"] for row in torch.load(path, weights_only=False)["history"]]
+    assert config.learning_rate > rates[0] > rates[1] > config.learning_rate / 4
 
 
 @pytest.mark.parametrize(("seed", "K", "grid", "batch"), [(0, 16, 6, 1), (1, 64, 6, 3), (2, 32, 12, 2), (3, 16, 5, 1)])
@@ -114,3 +124,16 @@ def test_fast_generation_equals_the_naive_reference(seed, K, grid, batch):
     fast = generate_fast(model, context, temperature=1.0, generator=torch.Generator().manual_seed(seed))
     naive = model.generate_naive(context, temperature=1.0, generator=torch.Generator().manual_seed(seed))
     assert torch.equal(fast, naive)
+
+
+def test_learning_rate_halves_every_halflife_and_is_constant_without_one():
+    from dynplan.training.pixelcnn import learning_rate
+
+    decaying = SMALL.model_copy(update={"learning_rate": 1e-3, "batch_size": 64, "learning_rate_halflife": 640})
+    assert learning_rate(decaying, 0) == pytest.approx(1e-3)
+    assert learning_rate(decaying, 10) == pytest.approx(5e-4)  # 10 steps × 64 windows = one half-life
+    assert learning_rate(decaying, 30) == pytest.approx(1.25e-4)
+    assert learning_rate(SMALL, 10_000) == SMALL.learning_rate
+    assert "learning_rate_halflife" not in SMALL.model_dump()  # unset, it leaves existing run keys as they were
+    with pytest.raises(ConfigError, match="learning_rate_halflife=0 is invalid"):
+        PixelCNNConfig(learning_rate_halflife=0)

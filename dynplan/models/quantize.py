@@ -27,6 +27,10 @@ class Quantized:
     counts: torch.Tensor
 
 
+#: Latent vectors per block of the nearest-code search (keeps its distance matrix in cache-sized pieces).
+NEAREST_ROWS = 2048
+
+
 class VectorQuantizer(nn.Module):
     def __init__(self, codebook_size: int, dim: int, n_codebooks: int = 1, commitment: float = 0.25,
                  ema: bool = True, decay: float = 0.99, restart_dead: bool = True, eps: float = 1e-5):  # fmt: skip
@@ -56,11 +60,14 @@ class VectorQuantizer(nn.Module):
         codes = []
         for i in range(self.n):
             e = self.embed[i]
-            # ‖z‖² − 2 z·e + ‖e‖², computed in place: the same floats as the plain expression, a third of the
-            # time (the (N, K) temporaries dominated it).
-            distance = flat[:, i] @ e.t()
-            distance.mul_(-2).add_(flat[:, i].pow(2).sum(1, keepdim=True)).add_(e.pow(2).sum(1))
-            codes.append(distance.argmin(1))
+            e_squared = e.pow(2).sum(1)
+            nearest = []
+            for part in flat[:, i].split(NEAREST_ROWS):  # an (N, K) distance matrix of a whole batch is ~1 GB
+                # ‖z‖² − 2 z·e + ‖e‖², in place: the same floats as the plain expression, a third of the time.
+                distance = part @ e.t()
+                distance.mul_(-2).add_(part.pow(2).sum(1, keepdim=True)).add_(e_squared)
+                nearest.append(distance.argmin(1))
+            codes.append(torch.cat(nearest))
         return torch.stack(codes, dim=-1).view(B, h, w, self.n)
 
     def forward(self, z: torch.Tensor) -> Quantized:

@@ -61,11 +61,15 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         s = torch.randint(0, T - CONTEXT, (config.batch_size,), generator=generator).numpy()
         window = grids[e[:, None], s[:, None] + np.arange(CONTEXT + 1)].astype(np.int64)  # (B, 5, h, w)
         window = torch.from_numpy(window).to(device, non_blocking=True)
+        if config.learning_rate_halflife:
+            for group in optimiser.param_groups:
+                group["lr"] = learning_rate(config, _steps_taken(optimiser))
         out = model(window[:, :CONTEXT], window[:, CONTEXT])
         optimiser.zero_grad(set_to_none=True)
         out.loss.backward()
         optimiser.step()
-        return {"loss": out.loss.item(), "accuracy": out.accuracy.item()}
+        rate = optimiser.param_groups[0]["lr"]
+        return {"loss": out.loss.item(), "accuracy": out.accuracy.item(), "learning_rate": rate}
 
     generated = np.linspace(0, len(val_target) - 1, min(256, len(val_target))).astype(int)  # spread evenly
 
@@ -90,6 +94,19 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
                        unit="windows")  # fmt: skip
     return loop.train(out_dir, stage, budget, on_epoch)
+
+
+def learning_rate(config: PixelCNNConfig, steps: int) -> float:
+    """The rate after `steps` optimisation steps: constant, or halving every `learning_rate_halflife` windows."""
+    if not config.learning_rate_halflife:
+        return config.learning_rate
+    return config.learning_rate * 0.5 ** (steps * config.batch_size / config.learning_rate_halflife)
+
+
+def _steps_taken(optimiser: torch.optim.Optimizer) -> int:
+    """Steps the optimiser has taken (kept in its state, so a resumed run continues the schedule)."""
+    state = optimiser.state.get(optimiser.param_groups[0]["params"][0], {})
+    return int(state["step"]) if "step" in state else 0
 
 
 def _validation(store: str, codes: str, n: int) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
