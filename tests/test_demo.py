@@ -58,3 +58,12 @@ def test_bench_unknown_name_is_a_clear_error():
     proc = subprocess.run([sys.executable, "-m", "dynplan.bench", "wrold"], cwd=ROOT, capture_output=True, text=True)
     assert proc.returncode == 2
     assert "invalid choice: 'wrold'" in proc.stderr
+
+
+def test_bench_decision_times_the_committed_paper_world_model():
+    from dynplan.bench.decision import bench_decision
+
+    results = bench_decision(decisions=3, threads=1)
+    paper = results["model_samples5_k3_paper"]
+    assert paper["weights"] == "committed" and paper["median_ms"] > 0
+    assert results["model_samples5_k3"]["weights"] in {"committed", "untrained"}
