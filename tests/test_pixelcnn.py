@@ -137,3 +137,16 @@ def test_learning_rate_halves_every_halflife_and_is_constant_without_one():
     assert "learning_rate_halflife" not in SMALL.model_dump()  # unset, it leaves existing run keys as they were
     with pytest.raises(ConfigError, match="learning_rate_halflife=0 is invalid"):
         PixelCNNConfig(learning_rate_halflife=0)
+
+
+def test_sampling_by_inverse_transform_follows_the_softmax():
+    from dynplan.models.pixelcnn import draw_uniforms, pick
+
+    logits = torch.tensor([[2.0, 0.0, -1.0, 1.0]]).expand(20_000, -1)
+    uniforms = draw_uniforms(20_000, 1, 1, 1.0, torch.Generator().manual_seed(0))[:, 0, 0]
+    counts = torch.bincount(pick(logits, 1.0, uniforms), minlength=4).double() / 20_000
+    assert torch.allclose(counts, torch.softmax(logits[0].double(), 0), atol=0.01)
+    hot = torch.bincount(pick(logits, 0.25, uniforms), minlength=4).double() / 20_000  # colder: nearer the argmax
+    assert hot[0] > 0.97
+    with pytest.raises(ValueError, match="temperature must be >= 0"):
+        draw_uniforms(1, 1, 1, -1.0, None)

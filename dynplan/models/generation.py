@@ -7,12 +7,11 @@ passes per grid. Here every feature is computed once, when its inputs exist (as 
 * at the start of row i, every layer's vertical stack for row i — it depends on rows above only;
 * at each position (i, j), every layer's horizontal stack for that position only, and the head.
 
-Greedy decoding — the planner's path — runs the whole grid in one compiled (numba) call: no Python or
-framework overhead per row or position, and every matrix–vector product is written as a sum of weight rows
-scaled by one input each (contiguous, so it vectorises, and the order of each output's sum stays fixed).
-Sampling (temperature > 0) runs the same caching in torch, position by position. The arithmetic is the
-network's own, so the grids equal the naive ones (up to float summation order, which the tests check does
-not change an argmax).
+The whole grid is one compiled (numba) call: no Python or framework overhead per row or position, and every
+matrix–vector product is written as a sum of weight rows scaled by one input each (contiguous, so it
+vectorises, and the order of each output's sum stays fixed). The arithmetic is the network's own, so the grids
+equal the naive ones — greedy or sampled from the same uniform numbers — up to float summation order, which
+the tests check does not change a choice.
 """
 
 from __future__ import annotations
@@ -20,14 +19,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 import torch
-import torch.nn.functional as F
 
-from dynplan.models.pixelcnn import ConditionalPixelCNN, _pick
-
-
-def _linear(conv: torch.nn.Conv2d, x: torch.Tensor) -> torch.Tensor:
-    """A 1 × 1 convolution applied to vectors (B, C_in) → (B, C_out), without convolution overhead."""
-    return F.linear(x, conv.weight.view(conv.out_channels, conv.in_channels), conv.bias)
+from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
 
 
 @torch.inference_mode()
@@ -35,65 +28,19 @@ def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature
                   generator: torch.Generator | None = None) -> torch.Tensor:  # fmt: skip
     """The next code grid given `context` (B, 4, h, w): greedy if `temperature` is 0, else sampled.
 
-    Same contract as `generate_naive`, at a fraction of the cost."""
-    layers = list(model.layers)
+    Same contract as `generate_naive` (the same codes, drawing the same random numbers), at a fraction of the
+    cost."""
+    B, _, H, W = context.shape
+    uniforms = draw_uniforms(B, H, W, temperature, generator)
     condition = model.condition(context)
-    cond_v, cond_h = zip(*(layer.condition(condition).chunk(2, dim=1) for layer in layers), strict=True)
-    if temperature == 0.0:
+    cond_v, cond_h = zip(*(layer.condition(condition).chunk(2, dim=1) for layer in model.layers), strict=True)
 
-        def channels_last(parts) -> np.ndarray:  # (L, B, 2C, h, w) → (L, B, h, w, 2C)
-            return np.ascontiguousarray(torch.stack(parts).permute(0, 1, 3, 4, 2).numpy(), dtype=np.float32)
+    def channels_last(parts) -> np.ndarray:  # (L, B, 2C, h, w) → (L, B, h, w, 2C)
+        return np.ascontiguousarray(torch.stack(parts).permute(0, 1, 3, 4, 2).numpy(), dtype=np.float32)
 
-        codes = _greedy_grid(channels_last(cond_v), channels_last(cond_h), *_compiled_weights(model))
-        return torch.from_numpy(codes)
-    return _generate_sampled(model, cond_v, cond_h, temperature, generator)
-
-
-def _generate_sampled(model: ConditionalPixelCNN, cond_v, cond_h, temperature: float,
-                      generator: torch.Generator | None) -> torch.Tensor:  # fmt: skip
-    """Position-by-position generation in torch with the same caching, drawing each code at `temperature`."""
-    layers = list(model.layers)
-    B, _, H, W = cond_v[0].shape
-    C = model.config.channels
-    codes = torch.zeros(B, H, W, dtype=torch.long)
-    x = torch.zeros(B, C, H, W)  # embedded codes generated so far: the input of layer 0's two stacks
-    v_in = [x] + [torch.zeros(B, C, H, W) for _ in layers[1:]]  # input of each layer's vertical stack
-    h_in = [x] + [torch.zeros(B, C, H, W) for _ in layers]  # input of each horizontal stack; last: its output
-    v_weights, h_weights = [], []
-    for layer in layers:
-        v_weight, h_weight = layer.vertical.weight, layer.horizontal.weight[:, :, 0]  # (2C, C, r, k), (2C, C, t)
-        if layer.mask == "A":
-            v_weight, h_weight = v_weight.clone(), h_weight.clone()
-            v_weight[:, :, -1] = 0.0
-            h_weight[:, :, -1] = 0.0
-        v_weights.append(v_weight)
-        h_weights.append(h_weight.reshape(2 * C, -1))  # taps flattened channel-major, as the gathered inputs are
-    head = list(model.head)
-    for i in range(H):
-        to_horizontal = []
-        for li, layer in enumerate(layers):
-            rows, half = v_weights[li].shape[2], v_weights[li].shape[3] // 2
-            above = v_in[li][:, :, max(0, i - rows + 1) : i + 1]
-            above = F.pad(above, (half, half, rows - above.shape[2], 0))  # (B, C, rows, W + 2·half)
-            v_pre = F.conv2d(above, v_weights[li], layer.vertical.bias)[:, :, 0]  # (B, 2C, W): row i
-            if li + 1 < len(layers):
-                v_in[li + 1][:, :, i] = layer.gate(v_pre + cond_v[li][:, :, i])
-            v2h = F.conv1d(v_pre, layer.vertical_to_horizontal.weight[:, :, 0], layer.vertical_to_horizontal.bias)
-            to_horizontal.append(v2h + cond_h[li][:, :, i])  # (B, 2C, W)
-        for j in range(W):
-            for li, layer in enumerate(layers):
-                taps = h_weights[li].shape[1] // C
-                row = h_in[li][:, :, i, max(0, j - taps + 1) : j + 1]
-                row = F.pad(row, (taps - row.shape[2], 0))  # (B, C, taps): columns j − taps + 1 … j
-                h_pre = F.linear(row.reshape(B, -1), h_weights[li], layer.horizontal.bias)
-                out = _linear(layer.horizontal_out, layer.gate(to_horizontal[li][:, :, j] + h_pre))
-                h_in[li + 1][:, :, i, j] = h_in[li][:, :, i, j] + out if layer.residual else out
-            hidden = _linear(head[1], F.relu(h_in[-1][:, :, i, j]))
-            logits = _linear(head[3], F.relu(hidden))
-            code = _pick(logits, temperature, generator)
-            codes[:, i, j] = code
-            x[:, :, i, j] = model.embed(code)
-    return codes
+    codes = _generate_grid(channels_last(cond_v), channels_last(cond_h), float(temperature), uniforms.numpy(),
+                           *_compiled_weights(model))  # fmt: skip
+    return torch.from_numpy(codes)
 
 
 def _taps(weight: torch.Tensor, mask_a: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -171,11 +118,28 @@ def _add_scaled(acc, weights, x):
                 acc[o] += row[o] * value
 
 
+@numba.njit(cache=True, inline="always")
+def _inverse_transform(logits, temperature, u, cdf):
+    """The first code whose cumulative softmax weight (at `temperature`, in float64) exceeds u · total."""
+    top = np.max(logits) / temperature
+    total = 0.0
+    for k in range(logits.shape[0]):
+        total += np.exp(np.float64(logits[k]) / temperature - top)
+        cdf[k] = total
+    threshold = u * total
+    for k in range(logits.shape[0]):
+        if cdf[k] > threshold:
+            return k
+    return logits.shape[0] - 1
+
+
 @numba.njit(cache=True, nogil=True)  # episodes on a thread pool generate in parallel
-def _greedy_grid(cond_v, cond_h, v_offsets, v_weight, v_taps, v_bias, v2h_weight, v2h_bias, h_offsets,
-                 h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1, w2, b2, embed):  # fmt: skip
-    """Greedy generation of whole code grids (compiled): vertical stacks row by row, horizontal stacks and the
-    head position by position.
+def _generate_grid(cond_v, cond_h, temperature, uniforms, v_offsets, v_weight, v_taps, v_bias, v2h_weight,
+                   v2h_bias, h_offsets, h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1, w2, b2,
+                   embed):  # fmt: skip
+    """Generation of whole code grids (compiled): vertical stacks row by row, horizontal stacks and the head
+    position by position; each code the argmax (temperature 0) or drawn by inverse transform of the softmax at
+    `temperature` with that position's number from `uniforms` (B, H, W) — as `pixelcnn.pick` does.
 
     cond_v, cond_h: (L, B, H, W, 2C) each layer's conditioning for its vertical and horizontal gates
     v_offsets (L, T, 2) / v_weight (L, T, C, 2C) / v_taps (L,): each layer's vertical taps, (row, col) offsets
@@ -195,6 +159,7 @@ def _greedy_grid(cond_v, cond_h, v_offsets, v_weight, v_taps, v_bias, v2h_weight
     gated = np.zeros(C, np.float32)
     hidden = np.zeros(w1.shape[1], np.float32)
     logits = np.zeros(w2.shape[1], np.float32)
+    cdf = np.zeros(w2.shape[1], np.float64)
     for b in range(B):
         x[:] = 0.0
         v_in[:] = 0.0
@@ -237,7 +202,9 @@ def _greedy_grid(cond_v, cond_h, v_offsets, v_weight, v_taps, v_bias, v2h_weight
                     hidden[o] = max(hidden[o], 0.0)
                 logits[:] = b2
                 _add_scaled(logits, w2, hidden)
-                best = np.argmax(logits)
-                codes[b, i, j] = best
-                x[i, j] = embed[best]
+                code = np.argmax(logits)
+                if temperature > 0.0:
+                    code = _inverse_transform(logits, temperature, uniforms[b, i, j], cdf)
+                codes[b, i, j] = code
+                x[i, j] = embed[code]
     return codes

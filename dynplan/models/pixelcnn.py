@@ -152,16 +152,32 @@ class ConditionalPixelCNN(nn.Module):
         `temperature` is 0, else sampled at that temperature. context (B, 4, h, w) → codes (B, h, w)."""
         B, _, h, w = context.shape
         condition = self.condition(context)
+        uniforms = draw_uniforms(B, h, w, temperature, generator)
         codes = torch.zeros(B, h, w, dtype=torch.long)
         for i in range(h):
             for j in range(w):
                 logits = self.logits(codes, condition)[:, :, i, j]
-                codes[:, i, j] = _pick(logits, temperature, generator)
+                codes[:, i, j] = pick(logits, temperature, uniforms[:, i, j])
         return codes
 
 
-def _pick(logits: torch.Tensor, temperature: float, generator: torch.Generator | None) -> torch.Tensor:
+def draw_uniforms(B: int, h: int, w: int, temperature: float, generator: torch.Generator | None) -> torch.Tensor:
+    """The uniform numbers a sampled grid uses, one per position, drawn up front (float64 (B, h, w); unused
+    zeros when greedy): every generator of the next grid consumes the random stream the same way."""
+    if temperature == 0.0:
+        return torch.zeros(B, h, w, dtype=torch.float64)
+    if temperature < 0.0:
+        raise ValueError(f"temperature must be >= 0, got {temperature}")
+    return torch.rand(B, h, w, generator=generator, dtype=torch.float64)
+
+
+def pick(logits: torch.Tensor, temperature: float, uniforms: torch.Tensor) -> torch.Tensor:
+    """Codes (B,) from logits (B, K): the argmax if `temperature` is 0, else by inverse transform of the
+    softmax at `temperature` with one uniform number per row."""
     if temperature == 0.0:
         return logits.argmax(-1)
-    probs = torch.softmax(logits / temperature, dim=-1)
-    return torch.multinomial(probs, 1, generator=generator).squeeze(-1)
+    scaled = logits.double() / temperature
+    weights = torch.exp(scaled - scaled.max(-1, keepdim=True).values)
+    cdf = weights.cumsum(-1)
+    index = torch.searchsorted(cdf, (uniforms * cdf[:, -1]).unsqueeze(-1).contiguous(), right=True)
+    return index.squeeze(-1).clamp(max=logits.shape[-1] - 1)
