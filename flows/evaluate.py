@@ -92,6 +92,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
     parser.add_argument("--results-dir", default="datasets/results", help="per-episode results and the table")
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    parser.add_argument("--model-dir", help="learned world models under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
+                        "(default: the committed weights)")  # fmt: skip
     parser.add_argument("--workers", type=int, help="episodes played at once locally (default: one per core)")
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     args = parser.parse_args(argv)
@@ -112,7 +114,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     rows = evaluate_planner.with_options(task_runner=runner)(
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
-        command=command, models=args.models,
+        command=command, models=args.models, model_dir=args.model_dir,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))
