@@ -97,26 +97,41 @@ def figure1(model: ForwardModel, path: str | os.PathLike, seed: int = EVAL_SEED_
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> None:
-    from dynplan.models.world_model import load_world_model
+def world_model(model: str, samples: int = 0, futures: int = 0, prior: str | None = None) -> ForwardModel:
+    """The committed world model of configuration `model`, or its tokenizer with the prior checkpoint `prior`."""
+    from dynplan.models import pretrained_path
+    from dynplan.models.world_model import LearnedWorldModel, load_world_model
+    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
+    from dynplan.training.vqvae import load_vqvae_checkpoint
 
+    if prior is None:
+        return load_world_model(model=model, samples=samples, futures=futures)
+    tokenizer = load_vqvae_checkpoint(pretrained_path("vqvae", model))
+    return LearnedWorldModel(tokenizer, load_pixelcnn_checkpoint(prior), samples=samples, futures=futures)
+
+
+def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
     parser.add_argument("--model", default="default", choices=["default", "paper"])
     parser.add_argument("--samples", type=int, nargs="+", default=[0, 5], help="decoder samples (0: Mid)")
+    parser.add_argument("--futures", type=int, nargs="*", default=[], help="also: code futures sampled from the prior")
+    parser.add_argument("--prior", help="a prior checkpoint to use instead of the committed one")
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--plot", help="write the error-against-horizon figure here")
     parser.add_argument("--figure", help="write a Figure-1-style image here")
     args = parser.parse_args(argv)
+    variants = [(samples, 0) for samples in args.samples] + [(0, futures) for futures in args.futures]
     curves = {}
-    for samples in args.samples:
-        model = load_world_model(model=args.model, samples=samples)
-        name = f"{args.model}, {'mid' if samples == 0 else f'{samples} samples'}"
+    for samples, futures in variants:
+        model = world_model(args.model, samples, futures, args.prior)
+        variant = f"{futures} futures" if futures else "mid" if samples == 0 else f"{samples} samples"
+        name = f"{args.model}, {variant}"
         curves[name] = errors_by_horizon(model, args.episodes)
         print(json.dumps({name: curves[name]}))
     if args.plot:
         plot_errors(curves, args.plot)
     if args.figure:
-        figure1(load_world_model(model=args.model, samples=max(args.samples)), args.figure)
+        figure1(world_model(args.model, max(args.samples), 0, args.prior), args.figure)
 
 
 if __name__ == "__main__":
