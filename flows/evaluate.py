@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import sys
 from dataclasses import asdict
@@ -108,8 +109,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
-    if not dask_address(args.dask_address):
-        torch.set_num_threads(1)  # the local pool plays one episode per core; more torch threads only contend
+    if not dask_address(args.dask_address):  # the local pool's episodes share the cores; more threads only contend
+        cores = os.cpu_count() or 1
+        torch.set_num_threads(max(1, cores // (args.workers or cores)))
     runner = task_runner(dask_address(args.dask_address), args.workers)
     rows = evaluate_planner.with_options(task_runner=runner)(
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
