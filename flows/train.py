@@ -126,7 +126,9 @@ def main(argv: list[str] | None = None) -> str:
             raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
         if not Path(args.store).exists():
             raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
-        if args.stage == "pixelcnn" and f"codes_{args.model}" not in zarr.open_group(args.store, mode="r"):
+        if args.stage == "pixelcnn" and f"codes_{args.model}" not in zarr.open_group(
+            args.store, mode="r", use_consolidated=False
+        ):
             raise FileNotFoundError(f"{args.store}: no codes_{args.model}; train the VQ-VAE first "
                                     f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
     except (ConfigError, ValueError, FileNotFoundError) as error:

@@ -60,6 +60,32 @@ def test_teacher_forced_loss_and_greedy_generation_are_consistent(model):
     assert torch.equal(sampled, again)
 
 
+def test_training_loss_equals_the_cross_entropy_of_the_logits(model):
+    """The loss runs its head over channels-last rows (for speed): the same numbers as the logits' cross-entropy."""
+    import torch.nn.functional as F
+
+    context, target = torch.randint(0, 16, (5, 4, 6, 6)), torch.randint(0, 16, (5, 6, 6))
+    logits = model.logits(target, model.condition(context))
+    out = model(context, target)
+    torch.testing.assert_close(out.logits, logits)
+    torch.testing.assert_close(out.loss, F.cross_entropy(logits, target))
+    assert out.accuracy == (logits.argmax(1) == target).float().mean()
+
+
+def test_codebook_init_keeps_the_codebook_geometry():
+    """Embeddings started from the codebook: distances between codes are the codebook's, up to one scale."""
+    torch.manual_seed(0)
+    model = ConditionalPixelCNN(SMALL)  # channels 8 (wider than the codebook), embed_dim 4 (its width)
+    codebook = torch.randn(16, 4) * 3.0 + 1.0
+    model.embed_codebook(codebook)
+    target = torch.cdist(codebook, codebook)
+    for table in (model.embed.weight, model.context_embed.weight):
+        distances = torch.cdist(table, table)
+        torch.testing.assert_close(distances / distances.max(), target / target.max(), rtol=1e-4, atol=1e-5)
+    with pytest.raises(ValueError, match="codebook has 8 entries"):
+        model.embed_codebook(torch.randn(8, 4))
+
+
 def test_config_errors():
     with pytest.raises(ConfigError, match="layers=1 is invalid"):
         PixelCNNConfig(layers=1)

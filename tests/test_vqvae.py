@@ -287,6 +287,11 @@ def test_an_interrupted_encoding_resumes_after_its_last_batch(tmp_path, store, m
         codes_module.build_codes(local, path, "tiny", batch=2)
     partial = zarr.open_group(str(local), mode="r", use_consolidated=False)["codes_tiny"]
     assert partial.attrs["episodes"] == 4  # two batches of 2 kept
+    consolidated = zarr.open_group(str(local), mode="r")["codes_tiny"]  # zarr's default view sees it too
+    assert consolidated.attrs["episodes"] == 4
+    from dynplan.data.datasets import WindowDataset
+
+    assert WindowDataset(local, "all", array="codes_tiny").episodes.tolist() == [0, 1, 2, 3]  # only what is encoded
     encoded = []
     monkeypatch.setattr(
         codes_module.da, "store", lambda *a, **k: encoded.append(k["regions"][0]) or real_store(*a, **k)

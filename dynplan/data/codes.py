@@ -75,6 +75,10 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
     def record(stop: int) -> None:  # the first `stop` episodes are encoded, by this checkpoint, from these logs
         codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(),
                            episodes=stop, source_digest=_digest(checksums[:stop]))  # fmt: skip
+        # Readers that trust the consolidated metadata (zarr's default) see the array and its progress at once.
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
+            zarr.consolidate_metadata(store)
 
     # In batches, each recorded as done once stored: an interrupted encoding resumes after the last batch.
     for start in progress(range(done, E, batch), total=len(range(done, E, batch)), description=array_name):
@@ -84,7 +88,4 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         da.store(encoded, codes, regions=(slice(start, stop),), lock=False)
         record(stop)
     record(E)
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
-        zarr.consolidate_metadata(store)
     return array_name

@@ -35,7 +35,7 @@ class _EpisodeArray(Dataset):
                  array: str = "frames"):  # fmt: skip
         if split not in ("train", "validation", "all"):
             raise ValueError(f"split must be 'train', 'validation' or 'all', got {split!r}")
-        group = zarr.open_group(str(store), mode="r")
+        group = zarr.open_group(str(store), mode="r", use_consolidated=False)  # arrays may be growing
         if array not in group:
             raise KeyError(f"{store}: no array {array!r} (has {sorted(group.array_keys())})")
         self.array = group[array]

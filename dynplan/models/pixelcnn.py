@@ -38,8 +38,11 @@ class PixelCNNConfig(Config):
         None, ge=1, description="windows after which the learning rate halves (exponential decay; None: constant)"
     )
     batch_size: int = Field(64, ge=1, le=8192, description="windows per batch")
+    codebook_init: bool = Field(
+        False, description="start both code embeddings from the tokenizer's codebook (else random)"
+    )
 
-    _neutral = {"learning_rate_halflife": None}
+    _neutral = {"learning_rate_halflife": None, "codebook_init": False}
 
 
 PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
@@ -121,6 +124,20 @@ class ConditionalPixelCNN(nn.Module):
         self.head = nn.Sequential(nn.ReLU(), nn.Conv2d(c.channels, c.channels, 1), nn.ReLU(),
                                   nn.Conv2d(c.channels, c.codebook_size, 1))  # fmt: skip
 
+    @torch.no_grad()
+    def embed_codebook(self, codebook: torch.Tensor, generator: torch.Generator | None = None) -> None:
+        """Start both code embeddings from the tokenizer's codebook (K, D), standardised and mapped to each
+        embedding's width by a random orthonormal matrix: codes whose patches look alike start alike, so the
+        prior need not discover from scratch which of the K codes are near each other."""
+        entries, D = codebook.shape
+        if entries != self.config.codebook_size:
+            raise ValueError(f"codebook has {entries} entries; the prior is configured for {self.config.codebook_size}")
+        standard = (codebook - codebook.mean(0)) / codebook.std()
+        for table in (self.embed, self.context_embed):
+            width = table.weight.shape[1]
+            q, _ = torch.linalg.qr(torch.randn(max(D, width), min(D, width), generator=generator))
+            table.weight.copy_(standard @ (q if width <= D else q.T))
+
     def condition(self, context: torch.Tensor) -> torch.Tensor:
         """context (B, 4, h, w) codes → conditioning map (B, condition_channels, h, w)."""
         B, n, h, w = context.shape
@@ -133,17 +150,26 @@ class ConditionalPixelCNN(nn.Module):
 
     def logits_from_embedding(self, x: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
         """As `logits`, from the embedded grid (B, channels, h, w) — differentiable, for the causality test."""
+        return self.head(self._features(x, condition))
+
+    def _features(self, x: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
+        """The horizontal stack's output (B, channels, h, w), before the head."""
         v, h = x, x
         for layer in self.layers:
             v, h = layer(v, h, condition)
-        return self.head(h)
+        return h
 
     def forward(self, context: torch.Tensor, target: torch.Tensor) -> PriorOutput:
         """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w)."""
-        logits = self.logits(target, self.condition(context))
-        loss = F.cross_entropy(logits, target.long())
-        accuracy = (logits.argmax(1) == target).float().mean()
-        return PriorOutput(logits, loss, accuracy)
+        target = target.long()
+        hidden = self.head[:-1](self._features(self.embed(target).permute(0, 3, 1, 2), self.condition(context)))
+        # The last 1 × 1 convolution as a matrix product over channels-last features: the K-way log-softmax then
+        # runs over contiguous rows (1.3–1.4× faster training steps on a CPU than over the channel axis).
+        out = self.head[-1]
+        logits = F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)  # (B, h, w, K)
+        loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
+        accuracy = (logits.argmax(-1) == target).float().mean()
+        return PriorOutput(logits.permute(0, 3, 1, 2), loss, accuracy)
 
     @torch.inference_mode()
     def generate_naive(self, context: torch.Tensor, temperature: float = 0.0,

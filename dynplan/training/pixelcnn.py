@@ -41,13 +41,16 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     done = loop.begin(out_dir, KIND, config.model_dump(), budget)
     if done is not None:
         return done
-    group = zarr.open_group(store, mode="r")
+    group = zarr.open_group(store, mode="r", use_consolidated=False)
     tokenizer = load_vqvae_checkpoint(group[codes].attrs["checkpoint"])
     if tokenizer.config.codebook_size != config.codebook_size:
         raise ValueError(f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
                          f"for codebook_size={config.codebook_size}")  # fmt: skip
     device = budget.torch_device
-    model = ConditionalPixelCNN(config).to(device)
+    model = ConditionalPixelCNN(config)
+    if config.codebook_init:  # a warm start (`init_from`), loaded later, replaces this
+        model.embed_codebook(tokenizer.quantizer.embed[0], torch.Generator().manual_seed(budget.seed))
+    model = model.to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train_set = WindowDataset(store, "train", array=codes)
     if len(train_set.episodes) == 0:
@@ -116,7 +119,7 @@ def _validation(store: str, codes: str, n: int) -> tuple[torch.Tensor, torch.Ten
         val = WindowDataset(store, "all", array=codes)
     picks = np.linspace(0, len(val) - 1, min(n, len(val))).astype(int)
     contexts, targets = zip(*(val[int(i)] for i in picks), strict=True)
-    frames_array = zarr.open_group(store, mode="r")["frames"]
+    frames_array = zarr.open_group(store, mode="r", use_consolidated=False)["frames"]
     frames = np.stack([frames_array[int(val.episodes[i // val.per_episode]), i % val.per_episode + CONTEXT]
                        for i in picks])  # fmt: skip
     return torch.stack(contexts).long(), torch.stack(targets).long(), frames
