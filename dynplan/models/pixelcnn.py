@@ -47,9 +47,13 @@ class PixelCNNConfig(Config):
 
 PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
     # Priors for the two tokenizers (K follows each one's codebook), sized so that planning samples them fast on a
-    # CPU: 64 channels × 8 layers. Batches of 256 at rate 1e-3 (the committed ones trained on a GPU, `--device`).
+    # CPU. The paper's: 64 channels × 8 layers, batches of 256 at rate 1e-3 (trained on a GPU, `--device`).
     "paper": PixelCNNConfig(name="paper", codebook_size=512, batch_size=256, learning_rate=1e-3),
-    "default": PixelCNNConfig(name="default", codebook_size=4096, batch_size=256, learning_rate=1e-3),
+    # The default's 12 × 12 grid has 4× the positions and an 8× wider head: 32 channels and a 5 × 5 first kernel
+    # train 2× faster per window on a CPU than 64 and 7 and learn as fast per minute; embeddings started from the
+    # codebook reach 15.6 % code accuracy in 4 minutes against 11.2 % from random (README, "stage 2").
+    "default": PixelCNNConfig(name="default", codebook_size=4096, channels=32, first_kernel=5, codebook_init=True,
+                              batch_size=64, learning_rate=1e-3),  # fmt: skip
     # The reference's size: 15 layers of 256 channels, a 7 × 7 first kernel, then 3 × 3.
     "reference": PixelCNNConfig(name="reference", codebook_size=512, channels=256, layers=15, condition_channels=256),
 }
