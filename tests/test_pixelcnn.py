@@ -176,3 +176,19 @@ def test_sampling_by_inverse_transform_follows_the_softmax():
     assert hot[0] > 0.97
     with pytest.raises(ValueError, match="temperature must be >= 0"):
         draw_uniforms(1, 1, 1, -1.0, None)
+
+
+def test_prior_curves_plot_and_name_a_bad_run_argument(tmp_path, capsys):
+    from dynplan.analysis import prior_curves
+
+    header = "epoch,windows_seen,elapsed_s,val_accuracy,val_next_fn_rate\n"
+    (tmp_path / "a.csv").write_text(header + "1,3200,60,0.05,0.9\n2,6400,120,0.1,0.5\n")
+    (tmp_path / "empty.csv").write_text(header)
+    prior_curves.main([f"a={tmp_path / 'a.csv'}", "--plot", str(tmp_path / "c.png")])
+    assert (tmp_path / "c.png").stat().st_size > 1000
+    assert prior_curves.read_metrics(tmp_path / "a.csv")["val_accuracy"] == [0.05, 0.1]
+    with pytest.raises(ValueError, match="empty.csv: no epochs recorded"):
+        prior_curves.read_metrics(tmp_path / "empty.csv")
+    with pytest.raises(SystemExit):
+        prior_curves.main([str(tmp_path / "a.csv"), "--plot", str(tmp_path / "d.png")])
+    assert "is not NAME=METRICS_CSV" in capsys.readouterr().err

@@ -52,8 +52,15 @@ PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
     # The default's 12 × 12 grid has 4× the positions and an 8× wider head: 32 channels and a 5 × 5 first kernel
     # train 2× faster per window on a CPU than 64 and 7 and learn as fast per minute; embeddings started from the
     # codebook reach 15.6 % code accuracy in 4 minutes against 11.2 % from random (README, "stage 2").
-    "default": PixelCNNConfig(name="default", codebook_size=4096, channels=32, first_kernel=5, codebook_init=True,
-                              batch_size=64, learning_rate=1e-3),  # fmt: skip
+    "default": PixelCNNConfig(
+        name="default",
+        codebook_size=4096,
+        channels=32,
+        first_kernel=5,
+        codebook_init=True,
+        batch_size=64,
+        learning_rate=1e-3,
+    ),
     # The reference's size: 15 layers of 256 channels, a 7 × 7 first kernel, then 3 × 3.
     "reference": PixelCNNConfig(name="reference", codebook_size=512, channels=256, layers=15, condition_channels=256),
 }
