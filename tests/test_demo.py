@@ -67,3 +67,13 @@ def test_bench_decision_times_the_committed_paper_world_model():
     paper = results["model_samples5_k3_paper"]
     assert paper["weights"] == "committed" and paper["median_ms"] > 0
     assert results["model_samples5_k3"]["weights"] in {"committed", "untrained"}
+
+
+def test_bench_prior_reports_windows_per_second_against_its_baseline():
+    from dynplan.bench.prior import bench_prior
+
+    results = bench_prior(steps=1, repeats=1, threads=1, presets=("paper",))
+    paper = results["paper"]
+    assert paper["train_windows_per_s"] > 0 and paper["baseline_windows_per_s"] > 0
+    ratio = paper["train_windows_per_s"] / paper["baseline_windows_per_s"]
+    assert abs(paper["speedup_vs_baseline"] - ratio) < 0.02

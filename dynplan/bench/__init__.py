@@ -14,6 +14,7 @@ from dynplan.bench.decision import bench_decision
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.pipeline import bench_pipeline
+from dynplan.bench.prior import bench_prior
 from dynplan.bench.vqvae import bench_vqvae
 from dynplan.bench.world import bench_world
 
@@ -25,6 +26,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "data": bench_data,
     "mcts": bench_mcts,
     "vqvae": bench_vqvae,
+    "prior": bench_prior,
     "generation": bench_generation,
     "decision": bench_decision,
     "pipeline": bench_pipeline,

@@ -1,0 +1,67 @@
+"""`prior`: training throughput (windows/s) of each PixelCNN prior preset on this machine's cores.
+
+Random code windows at each preset's batch size. The baseline, timed in the same process, is the same model
+with its cross-entropy taken over the channel axis of (B, K, h, w) logits — the plain formulation, before
+`ConditionalPixelCNN.forward` moved the K-way log-softmax onto contiguous rows.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+
+import torch
+import torch.nn.functional as F
+
+from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
+
+
+def _channel_axis_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return F.cross_entropy(model.logits(target, model.condition(context)), target)
+
+
+def _rows_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    return model(context, target).loss
+
+
+def _train_rate(model: ConditionalPixelCNN, loss_fn: Callable, optimiser: torch.optim.Optimizer,
+                context: torch.Tensor, target: torch.Tensor, steps: int) -> float:  # fmt: skip
+    start = time.perf_counter()
+    for _ in range(steps):
+        loss = loss_fn(model, context, target)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+    return steps * len(target) / (time.perf_counter() - start)
+
+
+def bench_prior(steps: int = 4, repeats: int = 3, threads: int = 2,
+                presets: tuple[str, ...] = ("paper", "default")) -> dict[str, dict[str, float]]:  # fmt: skip
+    """Median over `repeats` of `steps` training batches per preset, alternating baseline and ours."""
+    torch.set_num_threads(threads)
+    results = {}
+    for name in presets:
+        config = PIXELCNN_PRESETS[name]
+        torch.manual_seed(0)
+        model = ConditionalPixelCNN(config).train()
+        optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+        h = w = 6 if name == "paper" else 12
+        context = torch.randint(0, config.codebook_size, (config.batch_size, config.context, h, w))
+        target = torch.randint(0, config.codebook_size, (config.batch_size, h, w))
+        rates: dict[str, list[float]] = {"baseline": [], "ours": []}
+        for fn in (_channel_axis_loss, _rows_loss):  # warm-up
+            _train_rate(model, fn, optimiser, context, target, 1)
+        for _ in range(repeats):
+            rates["baseline"].append(_train_rate(model, _channel_axis_loss, optimiser, context, target, steps))
+            rates["ours"].append(_train_rate(model, _rows_loss, optimiser, context, target, steps))
+        ours, baseline = statistics.median(rates["ours"]), statistics.median(rates["baseline"])
+        results[name] = {
+            "train_windows_per_s": round(ours, 1),
+            "baseline_windows_per_s": round(baseline, 1),
+            "speedup_vs_baseline": round(ours / baseline, 2),
+            "batch": config.batch_size,
+            "threads": threads,
+            "parameters": sum(p.numel() for p in model.parameters()),
+        }
+    return results
