@@ -15,6 +15,7 @@ import torch
 import torch.nn.functional as F
 
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
+from dynplan.models.vqvae import PRESETS
 
 
 def _channel_axis_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -46,7 +47,7 @@ def bench_prior(steps: int = 4, repeats: int = 3, threads: int = 2,
         torch.manual_seed(0)
         model = ConditionalPixelCNN(config).train()
         optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-        h = w = 6 if name == "paper" else 12
+        h, w = PRESETS[name].grid  # the code grid of the tokenizer this prior belongs to
         context = torch.randint(0, config.codebook_size, (config.batch_size, config.context, h, w))
         target = torch.randint(0, config.codebook_size, (config.batch_size, h, w))
         rates: dict[str, list[float]] = {"baseline": [], "ours": []}
