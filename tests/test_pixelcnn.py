@@ -133,6 +133,14 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
                           TrainBudget(epochs=2, steps_per_epoch=4, val_frames=8, threads=1))  # fmt: skip
     rates = [row["learning_rate"] for row in torch.load(path, weights_only=False)["history"]]
     assert config.learning_rate > rates[0] > rates[1] > config.learning_rate / 4
+    # A snapshot of a run to commit as weights: the model without the optimiser's state.
+    from dynplan.training.loop import export_weights
+
+    exported = export_weights(tmp_path / "decaying" / "checkpoint.pt", tmp_path / "weights.pt", "pixelcnn")
+    state = torch.load(exported, weights_only=False)
+    assert "optimiser" not in state and state["epoch"] == 2
+    snapshot = load_pixelcnn_checkpoint(exported).state_dict()
+    assert all(torch.equal(v, load_pixelcnn_checkpoint(path).state_dict()[k]) for k, v in snapshot.items())
 
 
 @pytest.mark.parametrize(("seed", "K", "grid", "batch"), [(0, 16, 6, 1), (1, 64, 6, 3), (2, 32, 12, 2), (3, 16, 5, 1)])

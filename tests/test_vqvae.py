@@ -49,6 +49,24 @@ def test_paper_encoder_is_four_4x4_convolutions_42_32_16_16():
         (42, (4, 4), (2, 2)), (32, (4, 4), (2, 2)), (16, (4, 4), (2, 2)), (16, (4, 4), (1, 1))]  # fmt: skip
 
 
+def test_patch_local_codes_see_and_decode_only_their_own_patch(frames):
+    config = VQVAEConfig(**PRESETS["default"].model_copy(update={"local": True, "codebook_size": 64}).model_dump())
+    model = VQVAE(config).eval()
+    x = frames[:1].clone()
+    changed = x.clone()
+    changed[0, 5, 9] = 244 if int(x[0, 5, 9]) != 244 else 0  # a pixel of the patch at code (1, 2)
+    with torch.no_grad():
+        z, z_changed = (model.encoder(to_unit(f).unsqueeze(1)) for f in (x, changed))
+        moved = (z - z_changed).abs().sum(1)[0] > 0
+        assert moved.nonzero().tolist() == [[1, 2]]
+        codes = model.encode(x)
+        other = codes.clone()
+        other[0, 4, 7] = (codes[0, 4, 7] + 1) % 64
+        differs = (model.decode_params(codes) - model.decode_params(other)).abs().sum(1)[0] > 0
+    rows, cols = differs.nonzero().T.tolist()
+    assert set(rows) <= set(range(16, 20)) and set(cols) <= set(range(28, 32)) and rows
+
+
 def test_several_codebooks_per_position(frames):
     config = TINY.model_copy(update={"n_codebooks": 3})
     model = VQVAE(VQVAEConfig(**config.model_dump())).eval()

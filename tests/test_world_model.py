@@ -77,6 +77,9 @@ def test_mismatched_parts_and_missing_checkpoints(tiny_model, tmp_path):
         LearnedWorldModel(tokenizer, ConditionalPixelCNN(PixelCNNConfig(codebook_size=32, channels=8, layers=2)))
     with pytest.raises(CheckpointError, match="no world model checkpoints"):
         load_world_model(tmp_path)
+    import dynplan.models
+
+    assert dynplan.models.load_world_model is load_world_model  # the package's API (loaded on first use)
 
 
 def test_prediction_error_curves_and_figure(tiny_model, tmp_path):

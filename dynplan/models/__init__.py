@@ -1,7 +1,8 @@
-"""The learned world model: the VQ-VAE tokenizer (stage 1); the conditional PixelCNN follows (stage 2).
+"""The learned world model: the VQ-VAE tokenizer (stage 1) and the conditional PixelCNN prior (stage 2).
 
 `load_vqvae()` returns a trained tokenizer: `encode(frames)` maps uint8 frames (N, H, W) to integer codes
 (N, h, w) and `decode(codes)` maps codes back to uint8 mid-point frames on the world's pixel values.
+`load_world_model()` returns the learned forward model the planner uses: `predict(context, k, samples)`.
 """
 
 from __future__ import annotations
@@ -38,4 +39,13 @@ def load_vqvae(path: str | os.PathLike | None = None, model: str = "default") ->
     return load_vqvae_checkpoint(path)
 
 
-__all__ = ["PRESETS", "VQVAE", "VQVAEConfig", "load_vqvae", "pretrained_path"]
+def __getattr__(name: str):
+    # The forward model imports the training code, which imports this package: load it on first use.
+    if name in ("load_world_model", "LearnedWorldModel"):
+        from dynplan.models import world_model
+
+        return getattr(world_model, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["PRESETS", "VQVAE", "LearnedWorldModel", "VQVAEConfig", "load_vqvae", "load_world_model", "pretrained_path"]

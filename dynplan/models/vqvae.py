@@ -42,8 +42,13 @@ class VQVAEConfig(Config):
     goal_weight: float = Field(1.0, gt=0.0, le=1000.0, description="loss weight of goal pixels")
     learning_rate: float = Field(1e-3, gt=0.0, le=1.0, description="Adam learning rate")
     batch_size: int = Field(32, ge=1, le=4096, description="frames per batch")
+    local: bool = Field(
+        False,
+        description="patch-local codes: kernels equal to strides and 1 × 1 residual blocks, so each code "
+        "depends only on its own patch and decodes to that patch alone",
+    )
 
-    _neutral = {"goal_weight": 1.0}
+    _neutral = {"goal_weight": 1.0, "local": False}
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -89,23 +94,27 @@ PRESETS: dict[str, VQVAEConfig] = {
 }
 
 
-def _conv(c_in: int, c_out: int, stride: int) -> nn.Module:
+def _conv(c_in: int, c_out: int, stride: int, local: bool = False) -> nn.Module:
+    if local:  # non-overlapping: each output sees exactly its own stride × stride input block
+        return nn.Conv2d(c_in, c_out, stride, stride=stride)
     if stride == 2:
         return nn.Conv2d(c_in, c_out, 4, stride=2, padding=1)
     # A 4 × 4 kernel keeps the size with padding 1 before and 2 after.
     return nn.Sequential(nn.ZeroPad2d((1, 2, 1, 2)), nn.Conv2d(c_in, c_out, 4))
 
 
-def _deconv(c_in: int, c_out: int, stride: int) -> nn.Module:
+def _deconv(c_in: int, c_out: int, stride: int, local: bool = False) -> nn.Module:
+    if local:
+        return nn.ConvTranspose2d(c_in, c_out, stride, stride=stride)
     if stride == 2:
         return nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1)
     return _conv(c_in, c_out, 1)  # a stride-1 "transpose" is a convolution
 
 
 class Residual(nn.Module):
-    def __init__(self, channels: int):
+    def __init__(self, channels: int, kernel: int = 3):
         super().__init__()
-        self.block = nn.Sequential(nn.ReLU(), nn.Conv2d(channels, channels, 3, padding=1), nn.ReLU(),
+        self.block = nn.Sequential(nn.ReLU(), nn.Conv2d(channels, channels, kernel, padding=kernel // 2), nn.ReLU(),
                                    nn.Conv2d(channels, channels, 1))  # fmt: skip
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -132,8 +141,11 @@ class VQVAE(nn.Module):
         widths = (1, *c.channels)
         layers: list[nn.Module] = []
         for i, stride in enumerate(c.strides):
-            layers += [_conv(widths[i], widths[i + 1], stride)] + ([nn.ReLU()] if i < len(c.strides) - 1 else [])
-        layers += [Residual(widths[-1]) for _ in range(c.residual_blocks)]
+            layers += [_conv(widths[i], widths[i + 1], stride, c.local)] + (
+                [nn.ReLU()] if i < len(c.strides) - 1 else []
+            )
+        kernel = 1 if c.local else 3
+        layers += [Residual(widths[-1], kernel) for _ in range(c.residual_blocks)]
         if c.residual_blocks:
             layers.append(nn.ReLU())
         if latent != widths[-1] or c.residual_blocks:
@@ -145,11 +157,11 @@ class VQVAE(nn.Module):
         layers = []
         if latent != widths[-1] or c.residual_blocks:
             layers.append(nn.Conv2d(latent, widths[-1], 1))
-        layers += [Residual(widths[-1]) for _ in range(c.residual_blocks)]
+        layers += [Residual(widths[-1], kernel) for _ in range(c.residual_blocks)]
         outs = (*reversed(widths[1:-1]), self.pixel.channels)
         ins = tuple(reversed(widths[1:]))
         for i, stride in enumerate(reversed(c.strides)):
-            layers += [nn.ReLU(), _deconv(ins[i], outs[i], stride)]
+            layers += [nn.ReLU(), _deconv(ins[i], outs[i], stride, c.local)]
         self.decoder = nn.Sequential(*layers)
 
     def forward(self, frames: torch.Tensor) -> VQVAEOutput:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -146,10 +147,15 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
             on_epoch(row)
     if epoch < budget.epochs:
         return latest
-    state = checkpoint.load(latest, stage.kind, stage.config)
+    return export_weights(latest, final, stage.kind, stage.config)
+
+
+def export_weights(latest: str | os.PathLike, final: str | os.PathLike, kind: str, config: dict | None = None) -> Path:
+    """Write the weights of checkpoint `latest` to `final` without the optimiser's state (a third of the size):
+    the end of a run, or a snapshot of one still training to commit as pretrained weights."""
+    state = checkpoint.load(latest, kind, config)
     kept = ("kind", "config", "model", "epoch", "elapsed_s", "history", "init_from")
-    checkpoint.save(final, {key: state.get(key) for key in kept})
-    return final
+    return checkpoint.save(final, {key: state.get(key) for key in kept})
 
 
 def _cpu(state):
