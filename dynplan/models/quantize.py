@@ -33,8 +33,12 @@ NEAREST_ROWS = 2048
 
 class VectorQuantizer(nn.Module):
     def __init__(self, codebook_size: int, dim: int, n_codebooks: int = 1, commitment: float = 0.25,
-                 ema: bool = True, decay: float = 0.99, restart_dead: bool = True, eps: float = 1e-5):  # fmt: skip
+                 ema: bool = True, decay: float = 0.99, restart_dead: bool = True, eps: float = 1e-5,
+                 restart_onto: str = "random"):  # fmt: skip
         super().__init__()
+        if restart_onto not in ("random", "worst"):
+            raise ValueError(f"restart_onto must be 'random' or 'worst', got {restart_onto!r}")
+        self.restart_onto = restart_onto
         self.K, self.D, self.n = codebook_size, dim, n_codebooks
         self.commitment, self.ema, self.decay, self.restart_dead, self.eps = commitment, ema, decay, restart_dead, eps
         embed = torch.randn(n_codebooks, codebook_size, dim) / dim**0.5
@@ -76,7 +80,7 @@ class VectorQuantizer(nn.Module):
         one_hot = F.one_hot(codes.reshape(-1, self.n), self.K).float()  # (N, n, K)
         counts = one_hot.sum(0)  # (n, K)
         if self.training and self.ema:
-            self._ema_update(z, one_hot, counts)
+            self._ema_update(z, one_hot, counts, codes)
             q = self.lookup(codes)
             loss = self.commitment * F.mse_loss(z, q.detach())
         else:
@@ -86,8 +90,11 @@ class VectorQuantizer(nn.Module):
         return Quantized(z + (q - z).detach(), codes, loss, perplexity, counts)
 
     @torch.no_grad()
-    def _ema_update(self, z: torch.Tensor, one_hot: torch.Tensor, counts: torch.Tensor) -> None:
+    def _ema_update(self, z: torch.Tensor, one_hot: torch.Tensor, counts: torch.Tensor, codes: torch.Tensor) -> None:
         flat = z.permute(0, 2, 3, 1).reshape(-1, self.n, self.D)
+        if self.restart_dead and self.restart_onto == "worst":  # each output's error under the codebook it met
+            picked = torch.stack([self.embed[i][codes.reshape(-1, self.n)[:, i]] for i in range(self.n)], 1)
+            error = (flat - picked).pow(2).sum(-1)  # (N, n)
         self.cluster_size.mul_(self.decay).add_(counts, alpha=1 - self.decay)
         self.embed_sum.mul_(self.decay).add_(torch.einsum("nik,nid->ikd", one_hot, flat), alpha=1 - self.decay)
         total = self.cluster_size.sum(1, keepdim=True)
@@ -95,12 +102,18 @@ class VectorQuantizer(nn.Module):
         self.embed.copy_(self.embed_sum / size.unsqueeze(-1))
         if self.restart_dead:
             # Codes whose running use fell below a hundredth of a vector per batch (never used, or unused for
-            # ~500 batches) move onto random encoder outputs of this batch.
+            # ~500 batches) move onto encoder outputs of this batch: uniformly at random, or ("worst") drawn in
+            # proportion to their squared quantisation error, as k-means++ seeds. Where one content fills most of
+            # the batch (empty road), random restarts land on it again and die; error-weighted ones reach the rare
+            # contents that have no code yet.
             dead = self.cluster_size < 0.01
             for i in range(self.n):
                 idx = dead[i].nonzero().squeeze(1)
                 if len(idx):
-                    pick = torch.randint(0, flat.shape[0], (len(idx),), device=z.device)
+                    if self.restart_onto == "worst":
+                        pick = torch.multinomial(error[:, i] + 1e-12, len(idx), replacement=True)
+                    else:
+                        pick = torch.randint(0, flat.shape[0], (len(idx),), device=z.device)
                     self.embed[i, idx] = flat[pick, i]
                     self.embed_sum[i, idx] = flat[pick, i]
                     self.cluster_size[i, idx] = 1.0

@@ -48,7 +48,11 @@ class VQVAEConfig(Config):
         "depends only on its own patch and decodes to that patch alone",
     )
 
-    _neutral = {"goal_weight": 1.0, "local": False}
+    restart_onto: Literal["random", "worst"] = Field(
+        "random", description="where dead codes restart: random encoder outputs, or ones drawn by quantisation error"
+    )
+
+    _neutral = {"goal_weight": 1.0, "local": False, "restart_onto": "random"}
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -152,7 +156,7 @@ class VQVAE(nn.Module):
             layers.append(nn.Conv2d(widths[-1], latent, 1))
         self.encoder = nn.Sequential(*layers)
         self.quantizer = VectorQuantizer(c.codebook_size, c.latent_dim, c.n_codebooks, c.commitment, c.ema,
-                                         restart_dead=c.restart_dead)  # fmt: skip
+                                         restart_dead=c.restart_dead, restart_onto=c.restart_onto)  # fmt: skip
         self.pixel = DMoL(c.n_mixtures) if c.likelihood == "dmol" else Categorical()
         layers = []
         if latent != widths[-1] or c.residual_blocks:
