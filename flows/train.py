@@ -90,10 +90,12 @@ def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default"
 
 @flow(name="train-pixelcnn", log_prints=True)
 def train_pixelcnn_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
-                        budget: dict | None = None, overrides: dict | None = None) -> str:  # fmt: skip
-    """Train the PixelCNN prior preset `model` on the store's `codes_<model>` (made by the VQ-VAE flow)."""
+                        budget: dict | None = None, overrides: dict | None = None,
+                        codes: str | None = None) -> str:  # fmt: skip
+    """Train the PixelCNN prior preset `model` on the store's `codes_<model>` (made by the VQ-VAE flow), or on
+    the code array `codes` (an experiment's tokenizer)."""
     config = PixelCNNConfig(**PIXELCNN_PRESETS[model].model_copy(update=overrides or {}).model_dump())
-    path = train_pixelcnn_task(store, f"codes_{model}", out, config.model_dump(),
+    path = train_pixelcnn_task(store, codes or f"codes_{model}", out, config.model_dump(),
                                TrainBudget(**(budget or {})).model_dump())  # fmt: skip
     print(f"checkpoint: {path}")
     return path
@@ -112,7 +114,9 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--device", help="torch device to train on, e.g. cuda (default: the CPU); same run folder")
     parser.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (same architecture)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
+    parser.add_argument("--codes", help="pixelcnn: the store's code array to train on (default: codes_<model>)")
     args = parser.parse_args(argv)
+    codes = args.codes or f"codes_{args.model}"
     try:
         overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
         budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
@@ -126,15 +130,15 @@ def main(argv: list[str] | None = None) -> str:
             raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
         if not Path(args.store).exists():
             raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
-        if args.stage == "pixelcnn" and f"codes_{args.model}" not in zarr.open_group(
-            args.store, mode="r", use_consolidated=False
-        ):
-            raise FileNotFoundError(f"{args.store}: no codes_{args.model}; train the VQ-VAE first "
+        if args.stage == "pixelcnn" and codes not in zarr.open_group(args.store, mode="r", use_consolidated=False):
+            raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
                                     f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
     except (ConfigError, ValueError, FileNotFoundError) as error:
         parser.error(str(error))
-    train_flow = train_vqvae_flow if args.stage == "vqvae" else train_pixelcnn_flow
-    return train_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides)
+    if args.stage == "vqvae":
+        return train_vqvae_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides)
+    return train_pixelcnn_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides,
+                               codes=codes)  # fmt: skip
 
 
 if __name__ == "__main__":

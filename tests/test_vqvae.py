@@ -340,3 +340,11 @@ def test_an_interrupted_encoding_resumes_after_its_last_batch(tmp_path, store, m
         np.testing.assert_array_equal(
             group["codes_tiny"][e], model.encode(torch.from_numpy(group["frames"][e])).numpy()
         )
+
+
+def test_train_command_line_names_a_missing_code_array(store, capsys):
+    from flows.train import main
+
+    with pytest.raises(SystemExit):
+        main(["pixelcnn", "--store", str(store), "--codes", "codes_nope"])
+    assert f"{store}: no codes_nope; train the VQ-VAE first" in capsys.readouterr().err
