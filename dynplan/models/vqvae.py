@@ -52,7 +52,11 @@ class VQVAEConfig(Config):
         "random", description="where dead codes restart: random encoder outputs, or ones drawn by quantisation error"
     )
 
-    _neutral = {"goal_weight": 1.0, "local": False, "restart_onto": "random"}
+    ema_decay: float = Field(
+        0.99, gt=0.0, lt=1.0, description="EMA decay of the codebook; an unused code dies after ~4.6/(1−decay) batches"
+    )
+
+    _neutral = {"goal_weight": 1.0, "local": False, "restart_onto": "random", "ema_decay": 0.99}
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -156,7 +160,8 @@ class VQVAE(nn.Module):
             layers.append(nn.Conv2d(widths[-1], latent, 1))
         self.encoder = nn.Sequential(*layers)
         self.quantizer = VectorQuantizer(c.codebook_size, c.latent_dim, c.n_codebooks, c.commitment, c.ema,
-                                         restart_dead=c.restart_dead, restart_onto=c.restart_onto)  # fmt: skip
+                                         decay=c.ema_decay, restart_dead=c.restart_dead,
+                                         restart_onto=c.restart_onto)  # fmt: skip
         self.pixel = DMoL(c.n_mixtures) if c.likelihood == "dmol" else Categorical()
         layers = []
         if latent != widths[-1] or c.residual_blocks:
