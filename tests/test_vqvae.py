@@ -348,3 +348,25 @@ def test_train_command_line_names_a_missing_code_array(store, capsys):
     with pytest.raises(SystemExit):
         main(["pixelcnn", "--store", str(store), "--codes", "codes_nope"])
     assert f"{store}: no codes_nope; train the VQ-VAE first" in capsys.readouterr().err
+
+
+def test_code_statistics_tell_a_patch_local_code_from_a_context_dependent_one(tmp_path, capsys):
+    import zarr
+
+    from dynplan.analysis.codes import code_statistics, main, patch_keys
+
+    frames = np.asarray(generate_world(RoadConfig(), 2).frames[:40])[None]  # (1, 40, 48, 48)
+    keys, empty = patch_keys(frames[0], (12, 12))
+    assert empty.mean() > 0.5 and len(np.unique(keys[empty])) == 1
+    group = zarr.open_group(tmp_path / "s.zarr", mode="w")
+    group.create_array("frames", data=frames)
+    group.create_array("codes_local", data=keys[None].astype(np.int32))  # a code per content
+    noisy = np.where(empty, np.random.default_rng(0).integers(0, 50, keys.shape), keys + 50)
+    group.create_array("codes_noisy", data=noisy[None].astype(np.int32))  # empty road gets one of 50 codes
+    local, context = (code_statistics(str(tmp_path / "s.zarr"), c, 1) for c in ("codes_local", "codes_noisy"))
+    assert local["codes_of_empty_patch"] == 1 and local["codes_per_content"] == 1.0
+    assert context["codes_of_empty_patch"] == 50 and context["codes_per_content"] > 1.0
+    assert local["distinct_contents"] == len(np.unique(keys)) and local["top4096_content_coverage"] == 1.0
+    with pytest.raises(SystemExit):
+        main(["--store", str(tmp_path / "s.zarr"), "--codes", "codes_nope"])
+    assert "no code array 'codes_nope' (arrays: codes_local, codes_noisy, frames)" in capsys.readouterr().err
