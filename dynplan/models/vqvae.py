@@ -47,11 +47,9 @@ class VQVAEConfig(Config):
         description="patch-local codes: kernels equal to strides and 1 × 1 residual blocks, so each code "
         "depends only on its own patch and decodes to that patch alone",
     )
-
     restart_onto: Literal["random", "worst"] = Field(
         "random", description="where dead codes restart: random encoder outputs, or ones drawn by quantisation error"
     )
-
     ema_decay: float = Field(
         0.99, gt=0.0, lt=1.0, description="EMA decay of the codebook; an unused code dies after ~4.6/(1−decay) batches"
     )
