@@ -370,3 +370,47 @@ def test_code_statistics_tell_a_patch_local_code_from_a_context_dependent_one(tm
     with pytest.raises(SystemExit):
         main(["--store", str(tmp_path / "s.zarr"), "--codes", "codes_nope"])
     assert "no code array 'codes_nope' (arrays: codes_local, codes_noisy, frames)" in capsys.readouterr().err
+
+
+def test_distinct_patches_count_every_tile_most_frequent_first(frames):
+    from dynplan.data.patches import distinct_patches, tiles
+
+    contents, counts = distinct_patches(frames.numpy(), (4, 4))
+    assert counts.sum() == 16 * 12 * 12 and (np.diff(counts) <= 0).all()
+    assert contents.shape == (len(counts), 4, 4)
+    flat = tiles(frames.numpy(), (4, 4))
+    assert (flat[5] == frames[0, :4, 20:24].numpy().ravel()).all()  # tile 5 of frame 0: row 0, column 5
+    # the most frequent content really occurs that often, and contents are distinct
+    assert (flat == contents[0].ravel()).all(1).sum() == counts[0]
+    assert len(np.unique(contents.reshape(len(contents), -1), axis=0)) == len(contents)
+
+
+def test_content_fitted_codebook_gives_each_frequent_content_a_code_of_its_own(tmp_path, store):
+    from dynplan.training.vqvae import content_sample
+
+    config = VQVAEConfig(name="tiny-contents", channels=(32, 64), strides=(2, 2), residual_blocks=1, latent_dim=16,
+                         codebook_size=64, likelihood="categorical", ema=True, local=True, codebook_fit="contents",
+                         batch_size=64, learning_rate=3e-3)  # fmt: skip
+    budget = TrainBudget(epochs=3, steps_per_epoch=150, val_frames=100, threads=1)
+    path = train_vqvae(store, tmp_path, config, budget)
+    history = torch.load(path, weights_only=False)["history"]
+    assert history[-1]["reconstruction"] < 0.7 * history[0]["reconstruction"]
+    assert history[-1]["contents_exact"] > history[0]["contents_exact"]
+    assert 0 < history[-1]["contents_coverage"] <= 1
+    model = load_vqvae_checkpoint(path)
+    from dynplan.data.datasets import FrameDataset
+
+    train = FrameDataset(str(store), "train")
+    frames = np.stack([train.array[int(e)] for e in train.episodes])
+    contents, _ = content_sample(frames, (4, 4), 64)
+    # each of the K most frequent contents is its own code, in frequency order, and decodes as the autoencoder does
+    codes = model.encode(torch.from_numpy(contents)).reshape(-1)
+    assert (codes == torch.arange(64)).all()
+    with torch.no_grad():
+        autoencoded = model.pixel.mid(model.autoencode_params(torch.from_numpy(contents)))
+    assert (model.decode(codes.view(-1, 1, 1)) == autoencoded).all()
+
+
+def test_content_fit_needs_a_patch_local_model():
+    with pytest.raises(ConfigError, match="codebook_fit='contents' needs local=True"):
+        VQVAEConfig(codebook_fit="contents")

@@ -17,6 +17,7 @@ import json
 import numpy as np
 import zarr
 
+from dynplan.data.patches import tiles
 from dynplan.env.config import FREE
 
 
@@ -26,7 +27,7 @@ def patch_keys(frames: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, n
     n, H, W = frames.shape
     h, w = grid
     ph, pw = H // h, W // w
-    patches = np.ascontiguousarray(frames.reshape(n, h, ph, w, pw).transpose(0, 1, 3, 2, 4).reshape(n * h * w, -1))
+    patches = tiles(frames, (ph, pw))
     _, keys = np.unique(patches.view(f"V{ph * pw}").ravel(), return_inverse=True)
     return keys.reshape(n, h, w), (patches == FREE).all(1).reshape(n, h, w)
 

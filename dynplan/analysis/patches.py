@@ -13,6 +13,7 @@ import json
 
 import numpy as np
 
+from dynplan.data.patches import tiles
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 
@@ -22,8 +23,7 @@ def patch_coverage(frames: np.ndarray, patch: tuple[int, int], ks: tuple[int, ..
     ph, pw = patch
     N, H, W = frames.shape
     gh, gw = H // ph, W // pw
-    tiles = frames[:, : gh * ph, : gw * pw].reshape(N, gh, ph, gw, pw).transpose(0, 1, 3, 2, 4).reshape(-1, ph * pw)
-    keys = np.ascontiguousarray(tiles).view(np.dtype((np.void, ph * pw))).ravel()
+    keys = tiles(frames, patch).view(np.dtype((np.void, ph * pw))).ravel()
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     order = np.argsort(-counts, kind="stable")
     rank = np.empty_like(order)

@@ -53,8 +53,15 @@ class VQVAEConfig(Config):
     ema_decay: float = Field(
         0.99, gt=0.0, lt=1.0, description="EMA decay of the codebook; an unused code dies after ~4.6/(1−decay) batches"
     )
+    codebook_fit: Literal["learned", "contents"] = Field(
+        "learned",
+        description="learned: the usual VQ-VAE training on frames; contents (patch-local only): train encoder and "
+        "decoder as an autoencoder of the distinct patch contents, and set the codebook to the encoder's outputs "
+        "of the K most frequent ones, so that each of them has a code of its own and decodes exactly",
+    )
 
-    _neutral = {"goal_weight": 1.0, "local": False, "restart_onto": "random", "ema_decay": 0.99}
+    _neutral = {"goal_weight": 1.0, "local": False, "restart_onto": "random", "ema_decay": 0.99,
+                "codebook_fit": "learned"}  # fmt: skip
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -67,6 +74,8 @@ class VQVAEConfig(Config):
             raise ValueError(f"frame {self.height}×{self.width} is not divisible by the encoder's stride {scale}")
         if self.restart_dead and not self.ema:
             raise ValueError("restart_dead needs ema=True")
+        if self.codebook_fit == "contents" and not (self.local and self.n_codebooks == 1):
+            raise ValueError("codebook_fit='contents' needs local=True and n_codebooks=1")
         return self
 
     @property
@@ -176,13 +185,40 @@ class VQVAE(nn.Module):
         z = self.encoder(to_unit(frames).unsqueeze(1))
         q = self.quantizer(z)
         params = self.decoder(q.quantized)
+        losses = {"reconstruction": self.reconstruction_loss(params, frames), "vq": q.loss}
+        return VQVAEOutput(params, q.codes, losses, q.perplexity, q.counts)
+
+    def reconstruction_loss(self, params: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
+        """Mean per-pixel negative log-likelihood of uint8 `frames`, obstacle and goal pixels weighted."""
         nll = self.pixel.nll(params, frames)
         c = self.config
         if c.obstacle_weight != 1.0 or c.goal_weight != 1.0:
             weight = torch.where(frames != FREE, c.obstacle_weight, 1.0)  # goal pixels included, as before
             nll = nll * weight * torch.where(frames == GOAL_VALUE, c.goal_weight, 1.0)
-        losses = {"reconstruction": nll.mean(), "vq": q.loss}
-        return VQVAEOutput(params, q.codes, losses, q.perplexity, q.counts)
+        return nll.mean()
+
+    @property
+    def patch(self) -> tuple[int, int]:
+        """(rows, columns) of the frame patch one code covers."""
+        h, w = self.config.grid
+        return self.config.height // h, self.config.width // w
+
+    def autoencode_params(self, patches: torch.Tensor) -> torch.Tensor:
+        """uint8 patches (N, ph, pw) → likelihood parameters, without quantisation (patch-local models only):
+        what `codebook_fit="contents"` trains."""
+        return self.decoder(self.encoder(to_unit(patches).unsqueeze(1)))
+
+    @torch.no_grad()
+    def fit_codebook(self, contents: torch.Tensor) -> None:
+        """Set the codebook to the encoder's outputs of uint8 patch `contents` (K, ph, pw), one code each."""
+        q = self.quantizer
+        if contents.shape[0] != q.K:
+            raise ValueError(f"need {q.K} contents for the codebook, got {contents.shape[0]}")
+        z = self.encoder(to_unit(contents).unsqueeze(1)).flatten(1)
+        q.embed[0].copy_(z)
+        if q.ema:  # consistent EMA state: each code its own cluster of one
+            q.embed_sum[0].copy_(z)
+            q.cluster_size[0].fill_(1.0)
 
     @torch.inference_mode()
     def encode(self, frames: torch.Tensor) -> torch.Tensor:

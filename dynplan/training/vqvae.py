@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from dynplan.data.datasets import FrameDataset
+from dynplan.data.patches import distinct_patches
 from dynplan.models.metrics import frame_errors
 from dynplan.models.vqvae import VQVAE, VQVAEConfig
 from dynplan.training import checkpoint, loop
@@ -25,6 +26,8 @@ KIND = "vqvae"
 #: Part of a training run's cache key. Bump it whenever a change to the model, likelihood, quantizer or this
 #: loop would change what training produces; edits that do not (docs, names) keep runs resumable.
 CODE_VERSION = "vqvae-1"
+#: Frames whose patches `codebook_fit="contents"` counts (evenly spaced over the training split).
+CONTENT_FRAMES = 100_000
 
 
 def _validation_frames(store: str, n: int) -> np.ndarray:
@@ -104,8 +107,30 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train = FrameDataset(store, "train" if len(FrameDataset(store, "train").episodes) else "all")
     frames = np.stack([train.array[int(e)] for e in train.episodes])  # (E, T, H, W) in memory, read once
-    E, T = frames.shape[:2]
     val = _validation_frames(store, budget.val_frames)
+
+    if config.codebook_fit == "contents":
+        step, epoch_end = _content_fit(model, optimiser, frames, config)
+    else:
+        step, epoch_end = _frame_steps(model, optimiser, frames, config)
+
+    def plot(folder: Path) -> None:
+        plot_reconstructions(model, val, folder / "reconstructions.png")
+
+    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step,
+                       evaluate=lambda: evaluate(model, val), epoch_end=epoch_end, plot=plot,
+                       unit="frames" if config.codebook_fit == "learned" else "patches")  # fmt: skip
+    return loop.train(out_dir, stage, budget, on_epoch)
+
+
+Step = Callable[[torch.Generator], dict[str, float]]
+
+
+def _frame_steps(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
+                 ) -> tuple[Step, Callable[[], dict[str, float]]]:  # fmt: skip
+    """The usual VQ-VAE training: batches of whole frames through encoder, quantizer and decoder."""
+    E, T = frames.shape[:2]
+    device = next(model.parameters()).device
     counts = torch.zeros(config.n_codebooks, config.codebook_size, device=device)
 
     def step(generator: torch.Generator) -> dict[str, float]:
@@ -126,12 +151,47 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
         counts.zero_()
         return {"codebook_usage": usage}
 
-    def plot(folder: Path) -> None:
-        plot_reconstructions(model, val, folder / "reconstructions.png")
+    return step, epoch_end
 
-    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step,
-                       evaluate=lambda: evaluate(model, val), epoch_end=epoch_end, plot=plot)  # fmt: skip
-    return loop.train(out_dir, stage, budget, on_epoch)
+
+def content_sample(frames: np.ndarray, patch: tuple[int, int], k: int) -> tuple[np.ndarray, float]:
+    """The `k` most frequent patch contents among (at most `CONTENT_FRAMES` evenly spaced of) `frames` (E, T, H, W),
+    padded with the most frequent where there are fewer, and the share of patches they cover."""
+    flat = frames.reshape(-1, *frames.shape[2:])
+    picked = flat[np.linspace(0, len(flat) - 1, min(len(flat), CONTENT_FRAMES)).astype(int)]
+    contents, counts = distinct_patches(picked, patch)
+    coverage = float(counts[:k].sum() / counts.sum())
+    if len(contents) < k:
+        contents = np.concatenate([contents, np.repeat(contents[:1], k - len(contents), 0)])
+    return contents[:k], coverage
+
+
+def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
+                 ) -> tuple[Step, Callable[[], dict[str, float]]]:  # fmt: skip
+    """`codebook_fit="contents"`: a patch-local model sees each patch alone, so it can be trained on the distinct
+    patch contents instead of frames — drawn uniformly, so a content seen once in 10⁵ patches is learned as well as
+    the empty road. Each step autoencodes a batch of them (no quantisation); each epoch ends by setting the
+    codebook to the encoder's outputs of the K most frequent contents, which then encode to codes of their own
+    and decode as the autoencoder does."""
+    device = next(model.parameters()).device
+    contents, coverage = content_sample(frames, model.patch, config.codebook_size)
+    contents = torch.from_numpy(contents).to(device)
+
+    def step(generator: torch.Generator) -> dict[str, float]:
+        batch = contents[torch.randint(0, len(contents), (config.batch_size,), generator=generator).to(device)]
+        loss = model.reconstruction_loss(model.autoencode_params(batch), batch)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        return {"reconstruction": loss.item(), "loss": loss.item()}
+
+    @torch.no_grad()
+    def epoch_end() -> dict[str, float]:
+        model.fit_codebook(contents)
+        exact = (model.pixel.mid(model.autoencode_params(contents)) == contents).flatten(1).all(1)
+        return {"contents_exact": float(exact.float().mean()), "contents_coverage": coverage}
+
+    return step, epoch_end
 
 
 def load_vqvae_checkpoint(path: str | os.PathLike, config: VQVAEConfig | None = None) -> VQVAE:
