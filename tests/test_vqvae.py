@@ -67,6 +67,13 @@ def test_patch_local_codes_see_and_decode_only_their_own_patch(frames):
     assert set(rows) <= set(range(16, 20)) and set(cols) <= set(range(28, 32)) and rows
 
 
+def test_patch_local_encoding_of_distinct_patches_equals_encoding_whole_frames(frames):
+    config = VQVAEConfig(**PRESETS["default"].model_copy(update={"local": True, "codebook_size": 64}).model_dump())
+    model = VQVAE(config).eval()
+    whole = model.quantizer.nearest(model.encoder(to_unit(frames).unsqueeze(1))).squeeze(-1)
+    assert (model.encode(frames) == whole).all() and len(whole.unique()) > 1
+
+
 def test_several_codebooks_per_position(frames):
     config = TINY.model_copy(update={"n_codebooks": 3})
     model = VQVAE(VQVAEConfig(**config.model_dump())).eval()
