@@ -35,7 +35,8 @@ def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20) -> dict[s
     return {
         "run": Path(checkpoint).parent.name,
         "epoch": state["epoch"],
-        "frames_seen": state["history"][-1]["frames_seen"],
+        # frames, or distinct patch contents for a content-fitted codebook (`codebook_fit="contents"`)
+        **{key: value for key, value in state["history"][-1].items() if key.endswith("_seen")},
         "train_hours": round(state["elapsed_s"] / 3600, 2),
         "frames": len(frames),
         **frame_errors(frames, np.concatenate(decoded)),
