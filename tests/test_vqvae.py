@@ -5,13 +5,14 @@ import pytest
 import torch
 
 from dynplan.config import ConfigError
+from dynplan.data.datasets import FrameDataset
 from dynplan.data.store import build_frame_store_from_logs, list_logs
 from dynplan.env import RoadConfig, generate_world
 from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
 from dynplan.models.vqvae import PRESETS, VQVAE, VQVAEConfig
 from dynplan.training.checkpoint import CheckpointError
-from dynplan.training.vqvae import TrainBudget, load_vqvae_checkpoint, train_vqvae
+from dynplan.training.vqvae import TrainBudget, content_sample, load_vqvae_checkpoint, train_vqvae
 
 TINY = VQVAEConfig(name="tiny", channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16, n_mixtures=3,
                    batch_size=8)  # fmt: skip
@@ -393,8 +394,6 @@ def test_distinct_patches_count_every_tile_most_frequent_first(frames):
 
 
 def test_content_fitted_codebook_gives_each_frequent_content_a_code_of_its_own(tmp_path, store):
-    from dynplan.training.vqvae import content_sample
-
     config = VQVAEConfig(name="tiny-contents", channels=(32, 64), strides=(2, 2), residual_blocks=1, latent_dim=16,
                          codebook_size=64, likelihood="categorical", ema=True, local=True, codebook_fit="contents",
                          batch_size=64, learning_rate=3e-3)  # fmt: skip
@@ -405,8 +404,6 @@ def test_content_fitted_codebook_gives_each_frequent_content_a_code_of_its_own(t
     assert history[-1]["contents_exact"] > history[0]["contents_exact"]
     assert 0 < history[-1]["contents_coverage"] <= 1
     model = load_vqvae_checkpoint(path)
-    from dynplan.data.datasets import FrameDataset
-
     train = FrameDataset(str(store), "train")
     frames = np.stack([train.array[int(e)] for e in train.episodes])
     contents, _ = content_sample(frames, (4, 4), 64)
