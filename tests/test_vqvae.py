@@ -6,11 +6,12 @@ import torch
 
 from dynplan.config import ConfigError
 from dynplan.data.datasets import FrameDataset
+from dynplan.data.patches import distinct_patches
 from dynplan.data.store import build_frame_store_from_logs, list_logs
 from dynplan.env import RoadConfig, generate_world
 from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
-from dynplan.models.vqvae import PRESETS, VQVAE, VQVAEConfig
+from dynplan.models.vqvae import PRESETS, SHARPNESS_GRID, VQVAE, VQVAEConfig
 from dynplan.training.checkpoint import CheckpointError
 from dynplan.training.vqvae import TrainBudget, content_sample, load_vqvae_checkpoint, train_vqvae
 
@@ -418,3 +419,41 @@ def test_content_fitted_codebook_gives_each_frequent_content_a_code_of_its_own(t
 def test_content_fit_needs_a_patch_local_model():
     with pytest.raises(ConfigError, match="codebook_fit='contents' needs local=True"):
         VQVAEConfig(codebook_fit="contents")
+
+
+def test_decoder_calibration_needs_a_content_fitted_categorical_model():
+    with pytest.raises(ConfigError, match="calibrate_decoder needs codebook_fit='contents'"):
+        VQVAEConfig(calibrate_decoder=True)
+    assert "calibrate_decoder" not in PRESETS["default"].model_dump() or PRESETS["default"].calibrate_decoder
+
+
+def test_calibrated_codes_sample_as_certainly_as_the_data_and_keep_their_mid_point(frames):
+    contents, counts = (torch.from_numpy(a) for a in distinct_patches(frames.numpy(), (2, 2)))
+    k = len(contents)  # every content a code of its own: each code's data are certain
+    config = VQVAEConfig(channels=(16,), strides=(2,), latent_dim=4, codebook_size=k, likelihood="categorical",
+                         local=True, codebook_fit="contents", calibrate_decoder=True)  # fmt: skip
+    torch.manual_seed(0)
+    model = VQVAE(config)
+    optimiser = torch.optim.Adam(model.parameters(), lr=1e-2)
+    for _ in range(300):  # autoencode the contents, as the contents fit does
+        loss = model.reconstruction_loss(model.autoencode_params(contents), contents)
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    model.eval().fit_codebook(contents)
+    codes = model.encode(frames)
+    exact = (model.decode(torch.arange(k).view(k, 1, 1)) == contents).flatten(1).all(1)
+    assert exact.float().mean() > 0.9
+    mid_before, params_before = model.decode(codes), model.decode_params(codes)
+    samples_before = model.decode_samples(codes, 10)
+    sharpness = model.calibrate(contents, counts)
+    assert sharpness.shape == (k,) and (sharpness > 0).all()
+    assert (model.decode(codes) == mid_before).all()  # a positive scale keeps every argmax
+    nll = lambda params: Categorical().nll(params, frames).sum().item()  # noqa: E731
+    assert nll(model.decode_params(codes)) < nll(params_before)
+    # codes that decode their content exactly are made as certain as the grid allows, and sample it
+    assert (sharpness[exact] == SHARPNESS_GRID.max()).all()
+    samples = model.decode_samples(codes, 10)
+    certain = exact[codes].repeat_interleave(2, 1).repeat_interleave(2, 2)
+    assert (samples[:, certain] == frames[certain]).all()
+    assert (samples_before != frames).sum() > (samples != frames).sum()

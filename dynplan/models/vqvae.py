@@ -13,14 +13,18 @@ from typing import Literal
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from pydantic import Field, model_validator
 from torch import nn
 
 from dynplan.config import Config
 from dynplan.data.patches import tiles
 from dynplan.env.config import FREE, GOAL_VALUE
-from dynplan.models.likelihood import Categorical, DMoL, to_unit
+from dynplan.models.likelihood import Categorical, DMoL, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
+
+#: The logit scales (inverse temperatures, 0.1 … 100) a calibrated decoder picks from, per code.
+SHARPNESS_GRID = torch.logspace(-1, 2, 61)
 
 
 class VQVAEConfig(Config):
@@ -62,8 +66,15 @@ class VQVAEConfig(Config):
         "of the K most frequent ones, so that each of them has a code of its own and decodes exactly",
     )
 
+    calibrate_decoder: bool = Field(
+        False,
+        description="contents fit: after each codebook fit, scale each code's decoder logits by the temperature "
+        "that maximises the likelihood of the training patches (as often as they occur) given their codes, so "
+        "that decoder samples are as certain as the data make them (mid-point frames are unchanged)",
+    )
+
     _neutral = {"goal_weight": 1.0, "local": False, "restart_onto": "random", "ema_decay": 0.99,
-                "codebook_fit": "learned"}  # fmt: skip
+                "codebook_fit": "learned", "calibrate_decoder": False}  # fmt: skip
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -78,6 +89,8 @@ class VQVAEConfig(Config):
             raise ValueError("restart_dead needs ema=True")
         if self.codebook_fit == "contents" and not (self.local and self.n_codebooks == 1):
             raise ValueError("codebook_fit='contents' needs local=True and n_codebooks=1")
+        if self.calibrate_decoder and (self.codebook_fit != "contents" or self.likelihood != "categorical"):
+            raise ValueError("calibrate_decoder needs codebook_fit='contents' and likelihood='categorical'")
         return self
 
     @property
@@ -181,6 +194,8 @@ class VQVAE(nn.Module):
         for i, stride in enumerate(reversed(c.strides)):
             layers += [nn.ReLU(), _deconv(ins[i], outs[i], stride, c.local)]
         self.decoder = nn.Sequential(*layers)
+        if c.calibrate_decoder:  # per-code logit scale (inverse temperature), set by `calibrate`
+            self.register_buffer("code_sharpness", torch.ones(c.codebook_size))
 
     def forward(self, frames: torch.Tensor) -> VQVAEOutput:
         """uint8 frames (B, H, W) → reconstruction parameters, codes and the training losses."""
@@ -247,7 +262,30 @@ class VQVAE(nn.Module):
     def decode_params(self, codes: torch.Tensor) -> torch.Tensor:
         if codes.dim() == 3:
             codes = codes.unsqueeze(-1)
-        return self.decoder(self.quantizer.lookup(codes.long()))
+        params = self.decoder(self.quantizer.lookup(codes.long()))
+        if self.config.calibrate_decoder:
+            ph, pw = self.patch
+            scale = self.code_sharpness[codes[..., 0].long()].repeat_interleave(ph, 1).repeat_interleave(pw, 2)
+            params = params * scale[:, None]
+        return params
+
+    @torch.no_grad()
+    def calibrate(self, contents: torch.Tensor, counts: torch.Tensor,
+                  scales: torch.Tensor = SHARPNESS_GRID) -> torch.Tensor:  # fmt: skip
+        """Temperature scaling, one temperature per code: set each code's logit scale to the one of `scales` that
+        maximises the likelihood of the distinct patch `contents` (U, ph, pw), weighted by their `counts`, that
+        encode to it; codes no content encodes to keep scale 1. Returns the scales (K,)."""
+        codes = self.quantizer.nearest(self.encoder(to_unit(contents).unsqueeze(1))).reshape(-1)
+        logits = self.decoder(self.quantizer.lookup(codes[:, None, None, None]))  # (U, values, ph, pw)
+        target = value_index(contents)
+        nll = torch.stack([F.cross_entropy(logits * s, target, reduction="none").sum((1, 2)) for s in scales], 1)
+        per_code = torch.zeros(self.config.codebook_size, len(scales), dtype=torch.float64, device=nll.device)
+        per_code.index_add_(0, codes, nll.double() * counts.double()[:, None])
+        used = torch.bincount(codes, minlength=self.config.codebook_size) > 0
+        # ties (a likelihood of 1 to float precision) go to the sharpest scale
+        best = scales.to(nll.device).flip(0)[per_code.flip(1).argmin(1)]
+        self.code_sharpness.copy_(torch.where(used, best, torch.ones_like(best)))
+        return self.code_sharpness.clone()
 
     @torch.inference_mode()
     def decode(self, codes: torch.Tensor) -> torch.Tensor:

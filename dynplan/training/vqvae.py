@@ -157,13 +157,22 @@ def _frame_steps(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndar
 def content_sample(frames: np.ndarray, patch: tuple[int, int], k: int) -> tuple[np.ndarray, float]:
     """The `k` most frequent patch contents among (at most `CONTENT_FRAMES` evenly spaced of) `frames` (E, T, H, W),
     padded with the most frequent where there are fewer, and the share of patches they cover."""
-    flat = frames.reshape(-1, *frames.shape[2:])
-    picked = flat[np.linspace(0, len(flat) - 1, min(len(flat), CONTENT_FRAMES)).astype(int)]
-    contents, counts = distinct_patches(picked, patch)
+    return _most_frequent(*patch_counts(frames, patch), k)
+
+
+def _most_frequent(contents: np.ndarray, counts: np.ndarray, k: int) -> tuple[np.ndarray, float]:
     coverage = float(counts[:k].sum() / counts.sum())
     if len(contents) < k:
         contents = np.concatenate([contents, np.repeat(contents[:1], k - len(contents), 0)])
     return contents[:k], coverage
+
+
+def patch_counts(frames: np.ndarray, patch: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct patch contents of (at most `CONTENT_FRAMES` evenly spaced of) `frames` (E, T, H, W), most
+    frequent first, and how often each occurs."""
+    flat = frames.reshape(-1, *frames.shape[2:])
+    picked = flat[np.linspace(0, len(flat) - 1, min(len(flat), CONTENT_FRAMES)).astype(int)]
+    return distinct_patches(picked, patch)
 
 
 def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
@@ -172,10 +181,13 @@ def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndar
     patch contents instead of frames — drawn uniformly, so a content seen once in 10⁵ patches is learned as well as
     the empty road. Each step autoencodes a batch of them (no quantisation); each epoch ends by setting the
     codebook to the encoder's outputs of the K most frequent contents, which then encode to codes of their own
-    and decode as the autoencoder does."""
+    and decode as the autoencoder does — and, with `calibrate_decoder`, by fitting each code's temperature to
+    how often the patches occur (uniform draws leave the decoder ~0.2 % unsure of each empty-road pixel)."""
     device = next(model.parameters()).device
-    contents, coverage = content_sample(frames, model.patch, config.codebook_size)
+    every, counts = patch_counts(frames, model.patch)
+    contents, coverage = _most_frequent(every, counts, config.codebook_size)
     contents = torch.from_numpy(contents).to(device)
+    every, counts = torch.from_numpy(every).to(device), torch.from_numpy(counts).to(device)
 
     def step(generator: torch.Generator) -> dict[str, float]:
         batch = contents[torch.randint(0, len(contents), (config.batch_size,), generator=generator).to(device)]
@@ -189,7 +201,11 @@ def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndar
     def epoch_end() -> dict[str, float]:
         model.fit_codebook(contents)
         exact = (model.pixel.mid(model.autoencode_params(contents)) == contents).flatten(1).all(1)
-        return {"contents_exact": float(exact.float().mean()), "contents_coverage": coverage}
+        metrics = {"contents_exact": float(exact.float().mean()), "contents_coverage": coverage}
+        if config.calibrate_decoder:
+            sharpness = model.calibrate(every, counts)
+            metrics["median_code_sharpness"] = float(sharpness.median())
+        return metrics
 
     return step, epoch_end
 
