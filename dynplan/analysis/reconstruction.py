@@ -16,19 +16,25 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.protocol import EVAL_SEED_START
 from dynplan.models.metrics import frame_errors
+from dynplan.models.world_model import merge_samples
 from dynplan.training.vqvae import load_vqvae_checkpoint
 
 
-def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20) -> dict[str, float]:
-    """Mid-point reconstruction errors and code use over `episodes` evaluation episodes (407 frames each)."""
+def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20, samples: int = 5) -> dict[str, float]:
+    """Mid-point reconstruction errors and code use over `episodes` evaluation episodes (407 frames each), and the
+    errors of the frames the planner's *N samples* variant sees: the mid-point merged with `samples` decoder
+    samples (obstacles: union; goal: median)."""
     model = load_vqvae_checkpoint(checkpoint)
     frames = np.concatenate([generate_world(RoadConfig(agent_speed=0.5), EVAL_SEED_START + i).frames
                              for i in range(episodes)])  # fmt: skip
-    decoded, codes = [], []
+    generator = torch.Generator().manual_seed(0)
+    decoded, merged, codes = [], [], []
     for i in range(0, len(frames), 512):
         c = model.encode(torch.from_numpy(frames[i : i + 512]))
         codes.append(c.flatten())
-        decoded.append(model.decode(c).numpy())
+        mid, drawn = model.decode_with_samples(c, samples, generator)
+        decoded.append(mid.numpy())
+        merged.append(merge_samples(mid.numpy(), drawn.numpy()))
     counts = torch.bincount(torch.cat(codes), minlength=model.config.codebook_size).double()
     p = counts / counts.sum()
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
@@ -40,6 +46,7 @@ def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20) -> dict[s
         "train_hours": round(state["elapsed_s"] / 3600, 2),
         "frames": len(frames),
         **frame_errors(frames, np.concatenate(decoded)),
+        **{f"samples{samples}_{k}": v for k, v in frame_errors(frames, np.concatenate(merged)).items()},
         "codes_used": int((counts > 0).sum()),
         "perplexity": round(float(torch.exp(-(p * torch.log(p + 1e-12)).sum())), 1),
     }
@@ -77,10 +84,11 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.reconstruction", description=__doc__)
     parser.add_argument("checkpoints", nargs="+", help="VQ-VAE checkpoints (checkpoint.pt or vqvae.pt)")
     parser.add_argument("--episodes", type=int, default=20, help="held-out evaluation episodes")
+    parser.add_argument("--samples", type=int, default=5, help="decoder samples merged as the planner does")
     parser.add_argument("--plot", help="also plot the runs' training curves (metrics.csv beside each) here")
     args = parser.parse_args(argv)
     for path in args.checkpoints:
-        print(json.dumps(held_out_errors(path, args.episodes)))
+        print(json.dumps(held_out_errors(path, args.episodes, args.samples)))
     if args.plot:
         runs = {Path(p).parent.name: Path(p).parent / "metrics.csv" for p in args.checkpoints}
         plot_curves(runs, args.plot)

@@ -103,11 +103,12 @@ class VQVAEConfig(Config):
 PRESETS: dict[str, VQVAEConfig] = {
     # The paper's model (SPEC §2), as published: 6 × 6 codes from a 512-entry codebook, DMoL likelihood.
     "paper": VQVAEConfig(name="paper"),
-    # Ours: a 12 × 12 grid of codes from 4096 entries, a categorical likelihood over the world's 7 values, EMA
-    # codebook with restarts, residual blocks, goal pixels weighted 10× in the loss. A code holds a 4 × 4 patch:
-    # 1024 entries cover 99.9 % of patches but only 95 % of those showing the goal (whose contents are the most
-    # varied), which capped exact goals near 97 %; see README, "World model". The committed weights are a warm
-    # start (`--init-from`, the codebook grown from 1024) of a 1024-entry run at rate 1e-3, at rate 2e-4.
+    # Ours: a 12 × 12 grid of patch-local codes, one per 4 × 4 patch, from 4096 entries, a categorical likelihood
+    # over the world's 7 values. The codebook is content-fitted: encoder and decoder are trained as an autoencoder
+    # of the distinct patch contents and each of the 4096 most frequent (99.98 % of patches) gets a code of its own;
+    # each code's decoder temperature is then calibrated to how often the patches occur. Goal pixels weigh 10× in
+    # the loss; the EMA fields are unused by the content fit but part of the committed run's config (and key).
+    # The committed weights are run `vqvae-default-1de9881c4f7e` (README, "World model").
     "default": VQVAEConfig(
         name="default",
         channels=(32, 64),
@@ -119,7 +120,11 @@ PRESETS: dict[str, VQVAEConfig] = {
         ema=True,
         restart_dead=True,
         goal_weight=10.0,
-        learning_rate=2e-4,
+        learning_rate=1e-3,
+        batch_size=1024,
+        local=True,
+        codebook_fit="contents",
+        calibrate_decoder=True,
     ),
 }
 

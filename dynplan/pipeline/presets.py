@@ -135,7 +135,10 @@ PIPELINE_PRESETS: dict[str, PipelinePreset] = {
         train_episodes=3000,
         models=("default", "paper"),
         pretrained=True,
-        vqvae={m: StagePlan(budget=TrainBudget(epochs=200, steps_per_epoch=200, threads=1)) for m in WORLD_MODELS},
+        vqvae={  # the budgets of the committed runs, so that retraining lands in their folders
+            "default": StagePlan(budget=TrainBudget(epochs=8, steps_per_epoch=1000)),
+            "paper": StagePlan(budget=TrainBudget(epochs=200, steps_per_epoch=200, threads=1)),
+        },
         pixelcnn={m: StagePlan(budget=TrainBudget(epochs=100, steps_per_epoch=500, threads=1)) for m in WORLD_MODELS},
         evaluation=EvalPlan(),
         report_episodes=10,
