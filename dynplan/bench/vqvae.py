@@ -1,4 +1,7 @@
-"""`vqvae`: training throughput (frames/s) and encode + decode throughput of each VQ-VAE preset, on 2 cores."""
+"""`vqvae`: training throughput and encode + decode throughput (frames/s) of each VQ-VAE preset, on 2 cores.
+
+Training is timed as each preset trains: batches of frames through encoder, quantizer and decoder, or, for a
+content-fitted codebook (`codebook_fit="contents"`), batches of patch contents through the autoencoder."""
 
 from __future__ import annotations
 
@@ -7,16 +10,22 @@ import time
 
 import torch
 
+from dynplan.data.patches import tiles
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.models.vqvae import PRESETS, VQVAE
 
 
 def _train_rate(model: VQVAE, optimiser: torch.optim.Optimizer, batch: torch.Tensor, steps: int) -> float:
+    """Items (frames, or patch contents for a content-fitted model) per second of training steps on `batch`."""
     model.train()
+    contents = model.config.codebook_fit == "contents"
     start = time.perf_counter()
     for _ in range(steps):
-        loss = sum(model(batch).losses.values())
+        if contents:
+            loss = model.reconstruction_loss(model.autoencode_params(batch), batch)
+        else:
+            loss = sum(model(batch).losses.values())
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -39,12 +48,18 @@ def bench_vqvae(steps: int = 20, repeats: int = 3, threads: int = 2) -> dict[str
     for name, config in PRESETS.items():
         model = VQVAE(config)
         optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-        batch = frames[: config.batch_size]
+        if config.codebook_fit == "contents":  # a batch of patch contents, as the contents fit draws them
+            patches = torch.from_numpy(tiles(frames.numpy(), model.patch)).reshape(-1, *model.patch)
+            batch = patches[torch.randint(0, len(patches), (config.batch_size,), generator=torch.Generator())]
+        else:
+            batch = frames[: config.batch_size]
         _train_rate(model, optimiser, batch, 2)  # warm-up
         _codec_rate(model, frames, 256)
         train = [_train_rate(model, optimiser, batch, steps) for _ in range(repeats)]
         results[name] = {
-            "train_frames_per_s": round(statistics.median(train)),
+            "train_patches_per_s" if config.codebook_fit == "contents" else "train_frames_per_s": round(
+                statistics.median(train)
+            ),
             "encode_decode_frames_per_s": round(statistics.median(_codec_rate(model, frames) for _ in range(repeats))),
             "threads": threads,
             "parameters": sum(p.numel() for p in model.parameters()),
