@@ -397,14 +397,16 @@ def test_distinct_patches_count_every_tile_most_frequent_first(frames):
 def test_content_fitted_codebook_gives_each_frequent_content_a_code_of_its_own(tmp_path, store):
     config = VQVAEConfig(name="tiny-contents", channels=(32, 64), strides=(2, 2), residual_blocks=1, latent_dim=16,
                          codebook_size=64, likelihood="categorical", ema=True, local=True, codebook_fit="contents",
-                         batch_size=64, learning_rate=3e-3)  # fmt: skip
+                         calibrate_decoder=True, batch_size=64, learning_rate=3e-3)  # fmt: skip
     budget = TrainBudget(epochs=3, steps_per_epoch=150, val_frames=100, threads=1)
     path = train_vqvae(store, tmp_path, config, budget)
     history = torch.load(path, weights_only=False)["history"]
     assert history[-1]["reconstruction"] < 0.7 * history[0]["reconstruction"]
     assert history[-1]["contents_exact"] > history[0]["contents_exact"]
     assert 0 < history[-1]["contents_coverage"] <= 1
+    assert 0 <= history[-1]["codes_at_lowest_sharpness"] < 1
     model = load_vqvae_checkpoint(path)
+    assert (model.code_sharpness != 1).any()  # the calibration travels with the checkpoint
     train = FrameDataset(str(store), "train")
     frames = np.stack([train.array[int(e)] for e in train.episodes])
     contents, _ = content_sample(frames, (4, 4), 64)
@@ -424,7 +426,7 @@ def test_content_fit_needs_a_patch_local_model():
 def test_decoder_calibration_needs_a_content_fitted_categorical_model():
     with pytest.raises(ConfigError, match="calibrate_decoder needs codebook_fit='contents'"):
         VQVAEConfig(calibrate_decoder=True)
-    assert "calibrate_decoder" not in PRESETS["default"].model_dump() or PRESETS["default"].calibrate_decoder
+    assert PRESETS["default"].calibrate_decoder
 
 
 def test_calibrated_codes_sample_as_certainly_as_the_data_and_keep_their_mid_point(frames):

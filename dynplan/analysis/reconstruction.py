@@ -63,13 +63,13 @@ def plot_curves(runs: dict[str, str | os.PathLike], path: str | os.PathLike) -> 
     for name, metrics in runs.items():
         with open(metrics) as stream:
             rows = list(csv.DictReader(stream))
-        seen = [float(r["frames_seen"]) / 1e6 for r in rows]
+        seen = [float(r.get("frames_seen") or r["patches_seen"]) / 1e6 for r in rows]
         keys = ("val_fn_rate", "val_fp_rate", "val_goal_exact")
         titles = ("obstacle false negatives", "false positives", "exact goals")
         for ax, key, title in zip(axes, keys, titles, strict=True):
             ax.plot(seen, [float(r[key]) for r in rows], label=name)
             ax.set_title(title)
-            ax.set_xlabel("training frames (millions)")
+            ax.set_xlabel("training frames or patch contents (millions)")
     for ax in axes[:2]:
         ax.set_yscale("log")
         ax.axhline(0.005, color="grey", linestyle=":", label="target 0.5 %")

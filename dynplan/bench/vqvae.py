@@ -48,7 +48,7 @@ def bench_vqvae(steps: int = 20, repeats: int = 3, threads: int = 2) -> dict[str
     for name, config in PRESETS.items():
         model = VQVAE(config)
         optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-        if config.codebook_fit == "contents":  # a batch of patch contents, as the contents fit draws them
+        if config.codebook_fit == "contents":  # a batch of patches, timed as a step of the contents fit
             patches = torch.from_numpy(tiles(frames.numpy(), model.patch)).reshape(-1, *model.patch)
             batch = patches[torch.randint(0, len(patches), (config.batch_size,), generator=torch.Generator())]
         else:

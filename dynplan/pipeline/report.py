@@ -47,7 +47,7 @@ def checkpoint_record(stage: str, model: str, path: str | os.PathLike) -> Checkp
 
     state = torch.load(path, map_location="cpu", weights_only=False)
     last = state["history"][-1] if state.get("history") else {}
-    keep = [k for k in last if k.startswith("val_") or k in ("loss", "frames_seen", "windows_seen")]
+    keep = [k for k in last if k.startswith("val_") or k in ("loss", "frames_seen", "patches_seen", "windows_seen")]
     return CheckpointRecord(stage, model, str(path), state["config"], int(state["epoch"]),
                             round(state["elapsed_s"] / 3600, 3), {k: last[k] for k in keep})  # fmt: skip
 

@@ -175,6 +175,9 @@ def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:
     them (unused codes, which dead-code restarts then place). Anything else is a CheckpointError."""
     source = checkpoint.load(path, kind)["model"]
     target = model.state_dict()
+    if "code_sharpness" in target and "code_sharpness" not in source:  # from an uncalibrated decoder: scale 1
+        source = {**source, "code_sharpness": torch.ones_like(target["code_sharpness"])}
+    source = {k: v for k, v in source.items() if k != "code_sharpness" or k in target}
     if set(source) != set(target):
         differing = ", ".join(sorted(set(source) ^ set(target))[:4])
         raise checkpoint.CheckpointError(

@@ -18,7 +18,7 @@ import torch
 from dynplan.data.datasets import FrameDataset
 from dynplan.data.patches import distinct_patches
 from dynplan.models.metrics import frame_errors
-from dynplan.models.vqvae import VQVAE, VQVAEConfig
+from dynplan.models.vqvae import SHARPNESS_GRID, VQVAE, VQVAEConfig
 from dynplan.training import checkpoint, loop
 from dynplan.training.loop import TrainBudget
 
@@ -205,6 +205,8 @@ def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndar
         if config.calibrate_decoder:
             sharpness = model.calibrate(every, counts)
             metrics["median_code_sharpness"] = float(sharpness.median())
+            # codes whose patches disagree most (rare contents mapped onto them): flat at the grid's lower end
+            metrics["codes_at_lowest_sharpness"] = float((sharpness == SHARPNESS_GRID.min()).float().mean())
         return metrics
 
     return step, epoch_end
