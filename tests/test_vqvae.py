@@ -459,3 +459,24 @@ def test_calibrated_codes_sample_as_certainly_as_the_data_and_keep_their_mid_poi
     certain = exact[codes].repeat_interleave(2, 1).repeat_interleave(2, 2)
     assert (samples[:, certain] == frames[certain]).all()
     assert (samples_before != frames).sum() > (samples != frames).sum()
+
+
+def test_a_calibrated_tokenizer_can_start_from_an_uncalibrated_ones_weights(tmp_path):
+    from dynplan.training import checkpoint
+    from dynplan.training.loop import warm_start
+
+    plain = VQVAEConfig(channels=(16,), strides=(2,), latent_dim=4, codebook_size=8, likelihood="categorical",
+                        local=True, codebook_fit="contents")  # fmt: skip
+    source = VQVAE(plain)
+    path = checkpoint.save(tmp_path / "vqvae.pt", {"kind": "vqvae", "config": plain.model_dump(), "epoch": 1,
+                                                   "model": source.state_dict()})  # fmt: skip
+    calibrated = VQVAE(VQVAEConfig(**{**plain.model_dump(), "calibrate_decoder": True}))
+    calibrated.code_sharpness.fill_(7.0)
+    warm_start(calibrated, str(path), "vqvae")
+    torch.testing.assert_close(calibrated.decoder[-1].weight, source.decoder[-1].weight)
+    assert (calibrated.code_sharpness == 1).all()  # an uncalibrated decoder's scale
+    back = VQVAE(plain)
+    path = checkpoint.save(tmp_path / "calibrated.pt", {"kind": "vqvae", "config": plain.model_dump(), "epoch": 1,
+                                                        "model": calibrated.state_dict()})  # fmt: skip
+    warm_start(back, str(path), "vqvae")  # the other way: the scales are dropped
+    torch.testing.assert_close(back.decoder[-1].weight, source.decoder[-1].weight)
