@@ -48,7 +48,8 @@ def bench_vqvae(steps: int = 20, repeats: int = 3, threads: int = 2) -> dict[str
     for name, config in PRESETS.items():
         model = VQVAE(config)
         optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-        if config.codebook_fit == "contents":  # a batch of patches, timed as a step of the contents fit
+        unit = "patches" if config.codebook_fit == "contents" else "frames"
+        if unit == "patches":  # a batch of patches, timed as a step of the contents fit
             patches = torch.from_numpy(tiles(frames.numpy(), model.patch)).reshape(-1, *model.patch)
             batch = patches[torch.randint(0, len(patches), (config.batch_size,), generator=torch.Generator())]
         else:
@@ -57,9 +58,7 @@ def bench_vqvae(steps: int = 20, repeats: int = 3, threads: int = 2) -> dict[str
         _codec_rate(model, frames, 256)
         train = [_train_rate(model, optimiser, batch, steps) for _ in range(repeats)]
         results[name] = {
-            "train_patches_per_s" if config.codebook_fit == "contents" else "train_frames_per_s": round(
-                statistics.median(train)
-            ),
+            f"train_{unit}_per_s": round(statistics.median(train)),
             "encode_decode_frames_per_s": round(statistics.median(_codec_rate(model, frames) for _ in range(repeats))),
             "threads": threads,
             "parameters": sum(p.numel() for p in model.parameters()),

@@ -89,8 +89,8 @@ class PipelinePreset(Config):
         return tuple(t for t in self.evaluation.techniques if t in LEARNED)
 
 
-# Small models trained from scratch in minutes on 2 cores: the default tokenizer with 512 codes (its 4,096 would
-# cost the small prior's output layer ~8×), and a small prior.
+# Small models trained from scratch in minutes on 2 cores: the default tokenizer with 512 codes (4,096 would make
+# the small prior's output layer 8× as wide), and a small prior.
 _QUICK_VQVAE = StagePlan(
     overrides={"codebook_size": 512},
     budget=TrainBudget(epochs=10, steps_per_epoch=100, val_frames=500),
