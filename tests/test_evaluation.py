@@ -182,15 +182,21 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
     from dynplan.models.vqvae import VQVAE, VQVAEConfig
 
+    from dynplan.models.world_model import OCCUPANCY
+
     torch.manual_seed(0)
-    tokenizer = VQVAE(VQVAEConfig(channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16,
-                                  likelihood="categorical"))  # fmt: skip
+    tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
+                                  likelihood="categorical", local=True))  # fmt: skip
     prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=2, condition_channels=8))
     monkeypatch.setattr(protocol, "_learned_parts", lambda model, model_dir: (tokenizer, prior))
     all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
     records = [run_case(c, eval_logs, tmp_path, playouts=5) for c in all_cases]
     assert records[0]["world_model_sha256"] == "missing+missing" or "+" in records[0]["world_model_sha256"]
+    assert records[0]["occupancy"] == OCCUPANCY["default"] > 0  # a result says which threshold it was played with
+    stale = {k: v for k, v in records[0].items() if k != "occupancy"}  # played before the threshold existed
+    all_cases[0].result_path(tmp_path).write_text(json.dumps(stale))
+    assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
     assert all_cases[0].result_path(tmp_path).parent.parent.name == "samples5-default"
     rows = aggregate(records)
     assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}

@@ -63,6 +63,55 @@ def test_sampled_futures_are_merged_conservatively(tiny_model):
     assert codes.shape == (4, 2, 6, 6)
 
 
+@pytest.fixture(scope="module")
+def tiny_local_model():
+    torch.manual_seed(0)
+    tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
+                                  likelihood="categorical", local=True))  # fmt: skip
+    prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=3, condition_channels=8))
+    return tokenizer, prior
+
+
+def test_occupancy_is_the_priors_obstacle_probability_along_the_greedy_future(tiny_local_model):
+    tokenizer, prior = tiny_local_model
+    model = LearnedWorldModel(tokenizer, prior, occupancy=0.5)
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    context, codes = model.encode_context(frames), model.predict_codes(frames, 2)[0]
+    probability = model.obstacle_probability(context, codes)
+    # the slow way: each position's distribution given the greedy prefix, each code's patch decoded on its own
+    patches = [tokenizer.decode(torch.tensor([[[q]]]))[0].numpy() for q in range(16)]
+    expected = np.zeros((2, 48, 48))
+    window = context
+    for i in range(2):
+        with torch.inference_mode():
+            logits = prior.logits(codes[i][None], prior.condition(window[None]))[0]  # (K, h, w)
+        for r in range(12):
+            for c in range(12):
+                p = torch.softmax(logits[:, r, c].double(), 0).numpy()
+                for q in range(16):
+                    expected[i, 4 * r : 4 * r + 4, 4 * c : 4 * c + 4] += p[q] * (
+                        (patches[q] != 0) & (patches[q] != GOAL_VALUE)
+                    )
+        window = torch.cat([window[1:], codes[i][None]])
+    np.testing.assert_allclose(probability, expected, atol=1e-5)
+    threshold = float(np.quantile(probability, 0.5))  # untrained weights: a threshold that splits the pixels
+    assert 0 < threshold < 1 and 0 < (probability >= threshold).mean() < 1
+    plain = LearnedWorldModel(tokenizer, prior).predict(frames, 2).frames
+    occupied = LearnedWorldModel(tokenizer, prior, occupancy=threshold).predict(frames, 2).frames
+    obstacle = (plain != 0) & (plain != GOAL_VALUE)
+    unsure = probability >= threshold
+    occupied_obstacle = (occupied != 0) & (occupied != GOAL_VALUE)
+    assert occupied_obstacle[obstacle].all() and occupied_obstacle[unsure].all()  # the greedy's and the unsure
+    assert not (occupied_obstacle & ~obstacle & ~unsure).any()  # and nothing else
+
+
+def test_occupancy_names_its_range_and_needs_patch_local_codes(tiny_model, tiny_local_model):
+    with pytest.raises(ValueError, match=r"occupancy must be in \[0, 1\)"):
+        LearnedWorldModel(*tiny_local_model, occupancy=1.0)
+    with pytest.raises(ValueError, match="occupancy needs a tokenizer with patch-local codes"):
+        LearnedWorldModel(*tiny_model, occupancy=0.1)
+
+
 def test_plans_an_episode_through_the_seam(tiny_model):
     tokenizer, prior = tiny_model
     world = generate_world(RoadConfig(), 3)

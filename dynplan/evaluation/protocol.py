@@ -75,10 +75,10 @@ def learned_model(model: str, samples: int, seed: int, futures: int = 0,
                   model_dir: str | os.PathLike | None = None) -> ForwardModel:  # fmt: skip
     """The learned forward model of configuration `model` (loaded once per process and version of the
     checkpoints; see `world_model_paths`)."""
-    from dynplan.models.world_model import LearnedWorldModel
+    from dynplan.models.world_model import OCCUPANCY, LearnedWorldModel
 
     parts = _learned_parts(model, None if model_dir is None else str(model_dir))
-    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed)
+    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed, occupancy=OCCUPANCY[model])
 
 
 #: technique → factory of its forward model for (recorded world, case, world-model folder or None) (None: the
@@ -153,11 +153,16 @@ def _world_model_identity(model: str, model_dir: str | None) -> str:
 
 
 def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir: str | None = None) -> dict:
-    """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights."""
+    """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights and
+    occupancy threshold (recorded only where it is on, so that results from before it existed stay valid)."""
+    from dynplan.models.world_model import OCCUPANCY
+
     source = log_path(log_dir, case.seed)
     provenance = {"playouts": playouts, "log_sha256": sha256_file(source) if source.exists() else None}
     if case.model is not None:
         provenance["world_model_sha256"] = _world_model_identity(case.model, model_dir)
+        if OCCUPANCY[case.model]:
+            provenance["occupancy"] = OCCUPANCY[case.model]
     return provenance
 
 

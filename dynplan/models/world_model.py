@@ -10,7 +10,10 @@ the context), and decodes the k grids. Variants of the paper's Table 1:
 
 Code grids are chosen greedily (argmax) as in the reference. Beyond the paper, `futures = N` also samples N
 stochastic futures from the prior itself (codes drawn at temperature 1) and merges their decoded frames with
-the greedy one the same way as decoder samples.
+the greedy one the same way as decoder samples; `occupancy = p` also marks as obstacles the pixels that the
+prior gives a probability of at least p of holding one, along the greedy future (the prior's own uncertainty
+where the argmax hides it: when an obstacle's next position is split over several codes, the argmax can be the
+empty patch). It needs patch-local codes, each decoding to its own patch.
 """
 
 from __future__ import annotations
@@ -26,6 +29,14 @@ from dynplan.models.generation import generate_fast
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.vqvae import VQVAE
 from dynplan.planning.forward import Prediction, goal_centres
+
+#: Per world-model configuration, the obstacle probability from which the prior's unsure obstacles join the
+#: planner's frames (0: off — the paper's argmax alone). The default's was chosen on validation episodes, not
+#: the evaluation's (README, "Planning with the prior's uncertainty").
+OCCUPANCY = {"default": 0.1, "paper": 0.0}
+#: The value drawn where only the occupancy shows an obstacle: a sedan's, the commonest class (the planner sees
+#: any value other than free and goal as an obstacle).
+UNSURE_OBSTACLE = 144
 
 
 def merge_samples(mid: np.ndarray, samples: np.ndarray) -> np.ndarray:
@@ -50,26 +61,60 @@ class LearnedWorldModel:
     last 4) and returns uint8 (k, H, W) frames as the planner sees them."""
 
     def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, futures: int = 0,
-                 seed: int = 0):  # fmt: skip
+                 seed: int = 0, occupancy: float = 0.0):  # fmt: skip
         if tokenizer.config.codebook_size != prior.config.codebook_size:
             raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
                              f"{tokenizer.config.codebook_size}")  # fmt: skip
         if samples < 0 or futures < 0:
             raise ValueError(f"samples and futures must be >= 0, got {samples}, {futures}")
+        if not 0.0 <= occupancy < 1.0:
+            raise ValueError(f"occupancy must be in [0, 1) (0: off), got {occupancy}")
+        if occupancy and not (tokenizer.config.local and tokenizer.config.n_codebooks == 1):
+            raise ValueError("occupancy needs a tokenizer with patch-local codes (local=True, n_codebooks=1), "
+                             f"got {tokenizer.config.name!r}")  # fmt: skip
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
-        self.samples, self.futures = samples, futures
+        self.samples, self.futures, self.occupancy = samples, futures, occupancy
         self.generator = torch.Generator().manual_seed(seed)
-        self.name = f"model(samples={samples}, futures={futures})"
+        self.name = f"model(samples={samples}, futures={futures}" + (f", occupancy={occupancy})" if occupancy else ")")
         self.context = prior.config.context
+        self._code_obstacles: torch.Tensor | None = None
+
+    @torch.inference_mode()
+    def code_obstacles(self) -> torch.Tensor:
+        """(K, ph · pw) float: 1 where a code's decoded patch shows an obstacle (patch-local codes only)."""
+        if self._code_obstacles is None:
+            patches = self.tokenizer.decode(torch.arange(self.tokenizer.config.codebook_size).reshape(-1, 1, 1))
+            self._code_obstacles = ((patches != FREE) & (patches != GOAL_VALUE)).flatten(1).float()
+        return self._code_obstacles
+
+    @torch.inference_mode()
+    def obstacle_probability(self, context: torch.Tensor, grids: torch.Tensor) -> np.ndarray:
+        """Per pixel, the prior's probability of an obstacle in each of the k predicted frames, given the
+        observed `context` codes (c, h, w) and, before each position, the greedy `grids` (k, h, w) themselves
+        (one teacher-forced pass over all k frames). Returns float32 (k, H, W)."""
+        windows = torch.cat([context, grids]).unfold(0, self.context, 1)[: len(grids)]  # (k, h, w, c)
+        logits = self.prior(windows.permute(0, 3, 1, 2), grids).logits  # (k, K, h, w)
+        probs = torch.softmax(logits.permute(0, 2, 3, 1), dim=-1)  # (k, h, w, K)
+        k, h, w, _ = probs.shape
+        ph, pw = self.tokenizer.patch
+        patches = (probs @ self.code_obstacles()).reshape(k, h, w, ph, pw)
+        return patches.permute(0, 1, 3, 2, 4).reshape(k, h * ph, w * pw).numpy()
+
+    @torch.inference_mode()
+    def encode_context(self, observed: np.ndarray) -> torch.Tensor:
+        """The code grids (context, h, w) of the last `context` observed frames."""
+        if len(observed) < self.context:
+            raise ValueError(f"the model needs the last {self.context} frames, got {len(observed)}")
+        return self.tokenizer.encode(torch.from_numpy(np.ascontiguousarray(observed[-self.context :])))
 
     @torch.inference_mode()
     def predict_codes(self, observed: np.ndarray, k: int, futures: int = 1, temperature: float = 0.0) -> torch.Tensor:
         """(futures, k, h, w) code grids of frames t+1 … t+k from the last `context` observed frames: greedy at
         temperature 0 (one future), else `futures` futures sampled at `temperature`."""
-        if len(observed) < self.context:
-            raise ValueError(f"the model needs the last {self.context} frames, got {len(observed)}")
-        frames = torch.from_numpy(np.ascontiguousarray(observed[-self.context :]))
-        context = self.tokenizer.encode(frames)[None].expand(futures, -1, -1, -1)
+        return self._chain(self.encode_context(observed), k, futures, temperature)
+
+    def _chain(self, context: torch.Tensor, k: int, futures: int, temperature: float) -> torch.Tensor:
+        context = context[None].expand(futures, -1, -1, -1)
         grids = []
         for _ in range(k):
             grid = generate_fast(self.prior, context, temperature, self.generator)  # (futures, h, w)
@@ -82,11 +127,15 @@ class LearnedWorldModel:
         """Frames t+1 … t+k: the greedy future's mid-point, merged with `samples` decoder samples (default: the
         model's) and with the mid-points of the model's sampled futures."""
         samples = self.samples if samples is None else samples
-        codes = self.predict_codes(observed, k)[0]
+        context = self.encode_context(observed)
+        codes = self._chain(context, k, 1, 0.0)[0]
         mid, decoded_samples = self.tokenizer.decode_with_samples(codes, samples, self.generator)
         mid, others = mid.numpy(), [decoded_samples.numpy()] if samples else []
+        if self.occupancy:
+            unsure = self.obstacle_probability(context, codes) >= self.occupancy
+            others.append(np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)[None])
         if self.futures:
-            sampled = self.predict_codes(observed, k, self.futures, temperature=1.0)
+            sampled = self._chain(context, k, self.futures, 1.0)
             others.append(self.tokenizer.decode(sampled.flatten(0, 1)).numpy().reshape(self.futures, k, *mid.shape[1:]))
         if others:
             mid = merge_samples(mid, np.concatenate(others))
@@ -94,9 +143,10 @@ class LearnedWorldModel:
 
 
 def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0,
-                     futures: int = 0, seed: int = 0) -> LearnedWorldModel:  # fmt: skip
+                     futures: int = 0, seed: int = 0, occupancy: float | None = None) -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
-    pretrained checkpoints of the configuration `model` ("default" or "paper")."""
+    pretrained checkpoints of the configuration `model` ("default" or "paper"). `occupancy`: None for the
+    configuration's own (`OCCUPANCY`)."""
     from dynplan.models import pretrained_path
     from dynplan.training.checkpoint import CheckpointError
     from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
@@ -111,4 +161,5 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
         raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
                               f"`python -m flows.train vqvae|pixelcnn --model {model}`")  # fmt: skip
     tokenizer, prior = load_vqvae_checkpoint(paths[0]), load_pixelcnn_checkpoint(paths[1])
-    return LearnedWorldModel(tokenizer, prior, samples, futures, seed)
+    occupancy = OCCUPANCY.get(model, 0.0) if occupancy is None else occupancy
+    return LearnedWorldModel(tokenizer, prior, samples, futures, seed, occupancy)
