@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynplan.env.config import FREE, GOAL_VALUE, RoadConfig
-from dynplan.evaluation.protocol import LEARNED, MODELS, ROLLOUT_STEPS, WORLD_MODELS, Case, log_path
+from dynplan.evaluation.protocol import LEARNED, MODELS, ROLLOUT_STEPS, WORLD_MODELS, Case, learned_model, log_path
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import read_episode_log
 from dynplan.planning.episode import run_episode
@@ -78,8 +78,10 @@ class Death:
     cause: str
 
 
-def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str | None = None) -> Death:
-    """Replay a case whose recorded outcome is a death and classify it (raises if the replay does not die)."""
+def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str | None = None,
+                 occupancy: float = 0.0) -> Death:  # fmt: skip
+    """Replay a case whose recorded outcome is a death and classify it (raises if the replay does not die).
+    `occupancy`: the threshold the learned model played with (its result records it where it was on)."""
     log = read_episode_log(log_path(log_dir, case.seed))
     world = log.world()
     max_steps = RoadConfig.from_dict(log.config.model_dump(), agent_speed=case.agent_speed).max_steps
@@ -90,7 +92,11 @@ def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str |
     def remember(t: int, position: np.ndarray, prediction, decision) -> None:
         last.update(t=t, p=prediction)
 
-    model = MODELS[case.technique](world, case, model_dir)
+    if case.technique in LEARNED:
+        samples, futures = LEARNED[case.technique]
+        model = learned_model(case.model, samples, case.planner_seed(), futures, model_dir, occupancy)
+    else:
+        model = MODELS[case.technique](world, case, model_dir)
     result = run_episode(world, planner, model, case.agent_speed, case.rollout_steps or 1, on_decision=remember)
     if result.outcome != "death":
         raise RuntimeError(f"{case.group}/seed{case.seed}: replay ended in {result.outcome!r}, recorded a death")

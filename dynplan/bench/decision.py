@@ -1,7 +1,8 @@
 """`decision`: milliseconds per planning decision with the learned world model (5 decoder samples, k = 3,
 100 playouts: prediction + search) — the paper's best agent took 1.7 s per decision on a GPU. The committed
 trained world model of each configuration is timed where it exists; until then an untrained one of the preset's
-size stands in (timing barely depends on the weights), and the result says which."""
+size stands in (timing barely depends on the weights), and the result says which. The default is also timed
+without its occupancy threshold (`model_samples5_k3_no_occupancy`), in the same run, to price that pass."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
 from dynplan.models.vqvae import PRESETS, VQVAE
-from dynplan.models.world_model import LearnedWorldModel, load_world_model
+from dynplan.models.world_model import OCCUPANCY, LearnedWorldModel, load_world_model
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
 from dynplan.training.checkpoint import CheckpointError
 
@@ -26,13 +27,17 @@ def bench_decision(decisions: int = 30, threads: int = 2) -> dict[str, dict[str,
     torch.set_num_threads(threads)
     world = generate_world(RoadConfig(), 2_000_000)
     results = {}
-    for name, case in (("default", "model_samples5_k3"), ("paper", "model_samples5_k3_paper")):
+    variants = (("default", "model_samples5_k3", None), ("default", "model_samples5_k3_no_occupancy", 0.0),
+                ("paper", "model_samples5_k3_paper", None))  # fmt: skip
+    for name, case, occupancy in variants:
         try:
-            model, weights = load_world_model(model=name, samples=5), "committed"
+            model, weights = load_world_model(model=name, samples=5, occupancy=occupancy), "committed"
         except CheckpointError:
             torch.manual_seed(0)
             prior = ConditionalPixelCNN(PIXELCNN_PRESETS[name])
-            model, weights = LearnedWorldModel(VQVAE(PRESETS[name]), prior, samples=5), "untrained"
+            occupancy = OCCUPANCY[name] if occupancy is None else occupancy
+            model = LearnedWorldModel(VQVAE(PRESETS[name]), prior, samples=5, occupancy=occupancy)
+            weights = "untrained"
         planner = MCTSPlanner(MCTSConfig(rollout_steps=3), agent_speed=1.0, max_steps=203)
         times = []
         for t in range(4, 5 + decisions):

@@ -71,14 +71,15 @@ def _learned_parts(model: str, model_dir: str | None):
     return _load_parts(_stamp(world_model_paths(model, model_dir)))
 
 
-def learned_model(model: str, samples: int, seed: int, futures: int = 0,
-                  model_dir: str | os.PathLike | None = None) -> ForwardModel:  # fmt: skip
+def learned_model(model: str, samples: int, seed: int, futures: int = 0, model_dir: str | os.PathLike | None = None,
+                  occupancy: float | None = None) -> ForwardModel:  # fmt: skip
     """The learned forward model of configuration `model` (loaded once per process and version of the
-    checkpoints; see `world_model_paths`)."""
+    checkpoints; see `world_model_paths`); `occupancy` None: the configuration's own (`OCCUPANCY`)."""
     from dynplan.models.world_model import OCCUPANCY, LearnedWorldModel
 
     parts = _learned_parts(model, None if model_dir is None else str(model_dir))
-    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed, occupancy=OCCUPANCY[model])
+    occupancy = OCCUPANCY[model] if occupancy is None else occupancy
+    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed, occupancy=occupancy)
 
 
 #: technique → factory of its forward model for (recorded world, case, world-model folder or None) (None: the
