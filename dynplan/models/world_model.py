@@ -93,11 +93,17 @@ class LearnedWorldModel:
         observed `context` codes (c, h, w) and, before each position, the greedy `grids` (k, h, w) themselves
         (one teacher-forced pass over all k frames). Returns float32 (k, H, W)."""
         windows = torch.cat([context, grids]).unfold(0, self.context, 1)[: len(grids)]  # (k, h, w, c)
-        logits = self.prior(windows.permute(0, 3, 1, 2), grids).logits  # (k, K, h, w)
-        probs = torch.softmax(logits.permute(0, 2, 3, 1), dim=-1)  # (k, h, w, K)
-        k, h, w, _ = probs.shape
+        k, h, w = grids.shape
         ph, pw = self.tokenizer.patch
-        patches = (probs @ self.code_obstacles()).reshape(k, h, w, ph, pw)
+        table = self.code_obstacles()
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)  # the same sums whatever the caller's threads: a result replays exactly
+        try:
+            logits = self.prior(windows.permute(0, 3, 1, 2), grids).logits  # (k, K, h, w)
+            probs = torch.softmax(logits.permute(0, 2, 3, 1), dim=-1)  # (k, h, w, K)
+            patches = (probs @ table).reshape(k, h, w, ph, pw)
+        finally:
+            torch.set_num_threads(threads)
         return patches.permute(0, 1, 3, 2, 4).reshape(k, h * ph, w * pw).numpy()
 
     @torch.inference_mode()
