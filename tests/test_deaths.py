@@ -74,3 +74,14 @@ def test_command_line_summarises_and_writes_the_causes(dying_case, tmp_path):
     assert saved["summary"] == rows and len(saved["deaths"]) == 2
     with pytest.raises(SystemExit):
         main(["--technique", "zero", "--agent-speed", "0.5", "--results-dir", str(results)])
+
+
+def test_deaths_replay_with_the_occupancy_their_result_records(monkeypatch):
+    import dynplan.analysis.deaths as deaths
+
+    seen = []
+    monkeypatch.setattr(deaths, "replay_death", lambda case, log, playouts, models, occupancy: seen.append(occupancy))
+    record = {"technique": "samples5", "agent_speed": 1.0, "rollout_steps": 1, "seed": 1, "model": "default",
+              "outcome": "death", "playouts": 100}  # fmt: skip
+    deaths.death_causes([record, {**record, "occupancy": 0.1}, {**record, "outcome": "goal"}])
+    assert seen == [0.0, 0.1]  # absent: played before occupancy existed

@@ -181,7 +181,6 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     import dynplan.evaluation.protocol as protocol
     from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
     from dynplan.models.vqvae import VQVAE, VQVAEConfig
-
     from dynplan.models.world_model import OCCUPANCY
 
     torch.manual_seed(0)

@@ -118,6 +118,7 @@ def death_causes(records: list[dict], log_dir: str = "datasets/eval_logs", model
             log_dir,
             r["playouts"],
             model_dir,
+            r.get("occupancy", 0.0),
         )
         for r in progress(deaths, total=len(deaths), description="replay deaths")
     ]
