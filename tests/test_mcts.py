@@ -104,6 +104,25 @@ def test_subtree_is_reused_for_the_next_decision():
     assert third.visits.sum() == 49
 
 
+def test_stale_reused_visits_can_lead_into_a_foreseen_death_unless_avoided():
+    """The first prediction shows a free run to the goal on the right; the second, after one step right, an
+    obstacle on the next step. The reused subtree's visits (counted on the first) still favour that step."""
+    position = np.array([20.0, 20.0])
+    before = empty(k=3)
+    before[:, 20:22, 23:25] = GOAL_VALUE
+    after = before[1:].copy()
+    after[0, 20, 22] = 144
+    choices = {}
+    for avoid in (False, True):
+        agent = planner(k=3, playouts=100, avoid_foreseen_deaths=avoid)
+        first = agent.act(position, 4, Prediction.from_frames(before))
+        assert first.action == RIGHT
+        second = agent.act(position + action_deltas(1.0)[RIGHT], 5, Prediction.from_frames(after))
+        choices[avoid] = landing(position + action_deltas(1.0)[RIGHT], second.action)
+    assert after[0][tuple(choices[False])] == 144  # the paper's search steps onto the obstacle it can see
+    assert after[0][tuple(choices[True])] != 144
+
+
 def test_same_seed_same_decisions():
     world = generate_world(RoadConfig(), 3)
     a = run_episode(world, planner(seed=7), OracleModel(world), 1.0, 3)

@@ -47,6 +47,11 @@ class MCTSConfig(Config):
     temperature: float = Field(0.01, gt=0.0, le=100.0, description="temperature on visit counts")
     prior_weights: tuple[float, ...] = Field(PAPER_PRIOR, description="8 weights by heading rank")
     reuse_subtree: bool = Field(True, description="keep the chosen child's subtree as the next root")
+    avoid_foreseen_deaths: bool = Field(
+        False,
+        description="beyond the paper: never take a step the newest prediction shows as a death while another "
+        "exists (a reused subtree's visits were counted against an older prediction)",
+    )
 
     @field_validator("prior_weights")
     @classmethod
@@ -289,9 +294,20 @@ class MCTSPlanner:
         visits = tree.visits[children].astype(np.float64)
         q = np.where(visits > 0, tree.value[children] / np.maximum(visits, 1), 0.0)
         action = self._choose(visits)
+        if cfg.avoid_foreseen_deaths:
+            action = self._avoid_foreseen_death(action, children, frames, visits)
         self._next_root = int(children[action])
         return Decision(action, visits.astype(np.int64), q, tree.prior[children].copy(),
                         (time.perf_counter() - start) * 1e3)  # fmt: skip
+
+    def _avoid_foreseen_death(self, action: int, children: np.ndarray, frames: np.ndarray, visits: np.ndarray) -> int:
+        """`action`, unless the newest prediction shows its step as a death and another step is not: then the
+        most visited of those (ties to the higher prior)."""
+        tree = self.tree
+        dead = np.array([_judge(frames, 0, tree.position[c, 0], tree.position[c, 1]) == DEATH for c in children])
+        if not dead[action] or dead.all():
+            return action
+        return int(np.argmax(np.where(dead, -np.inf, visits + 1e-6 * tree.prior[children])))
 
     def _choose(self, visits: np.ndarray) -> int:
         """Sample from visits^(1/temperature), computed in log space (temperature 0.01: the most visited)."""
