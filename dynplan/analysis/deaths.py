@@ -24,12 +24,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dynplan.env.config import FREE, GOAL_VALUE, RoadConfig
-from dynplan.evaluation.protocol import LEARNED, MODELS, ROLLOUT_STEPS, WORLD_MODELS, Case, learned_model, log_path
+from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.evaluation.protocol import LEARNED, MODELS, ROLLOUT_STEPS, WORLD_MODELS, Case, case_agent, log_path
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import read_episode_log
 from dynplan.planning.episode import run_episode
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
 
 CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
 #: Columns an obstacle can move in one step (the fastest class moves 2.3 px/step, drawn at the rounded position).
@@ -82,21 +81,13 @@ def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str |
                  occupancy: float = 0.0) -> Death:  # fmt: skip
     """Replay a case whose recorded outcome is a death and classify it (raises if the replay does not die).
     `occupancy`: the threshold the learned model played with (its result records it where it was on)."""
-    log = read_episode_log(log_path(log_dir, case.seed))
-    world = log.world()
-    max_steps = RoadConfig.from_dict(log.config.model_dump(), agent_speed=case.agent_speed).max_steps
-    planner = MCTSPlanner(MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts), case.agent_speed,
-                          max_steps, seed=case.planner_seed())  # fmt: skip
+    world = read_episode_log(log_path(log_dir, case.seed)).world()
+    planner, model = case_agent(case, world, playouts, model_dir, occupancy)
     last: dict = {}
 
     def remember(t: int, position: np.ndarray, prediction, decision) -> None:
         last.update(t=t, p=prediction)
 
-    if case.technique in LEARNED:
-        samples, futures = LEARNED[case.technique]
-        model = learned_model(case.model, samples, case.planner_seed(), futures, model_dir, occupancy)
-    else:
-        model = MODELS[case.technique](world, case, model_dir)
     result = run_episode(world, planner, model, case.agent_speed, case.rollout_steps or 1, on_decision=remember)
     if result.outcome != "death":
         raise RuntimeError(f"{case.group}/seed{case.seed}: replay ended in {result.outcome!r}, recorded a death")

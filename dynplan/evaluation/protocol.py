@@ -177,6 +177,22 @@ def _existing(case: Case, results_dir: str | os.PathLike, provenance: dict) -> d
     return record if all(record.get(k) == v for k, v in provenance.items()) else None
 
 
+def case_agent(case: Case, world: World, playouts: int = 100, model_dir: str | None = None,
+               occupancy: float | None = None) -> tuple[MCTSPlanner | RandomPlanner, ForwardModel | None]:  # fmt: skip
+    """The planner and forward model that play `case` on its recorded `world`. `occupancy`: a learned model's
+    threshold (None: its configuration's own)."""
+    if case.technique in LEARNED:
+        samples, futures = LEARNED[case.technique]
+        model = learned_model(case.model, samples, case.planner_seed(), futures, model_dir, occupancy)
+    else:
+        model = MODELS[case.technique](world, case, model_dir)
+    if case.rollout_steps is None:
+        return RandomPlanner(case.planner_seed()), model
+    config = MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts)
+    max_steps = RoadConfig.from_dict(world.config.model_dump(), agent_speed=case.agent_speed).max_steps
+    return MCTSPlanner(config, case.agent_speed, max_steps, seed=case.planner_seed()), model
+
+
 def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100,
              model_dir: str | None = None) -> dict:  # fmt: skip
     """Play one case against its recorded episode and write its result JSON — or return the existing one, if it
@@ -193,13 +209,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
     if log.seed != case.seed:
         raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {case.seed}")
     world = log.world()
-    model = MODELS[case.technique](world, case, model_dir)
-    if case.rollout_steps is None:
-        planner = RandomPlanner(case.planner_seed())
-    else:
-        config = MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts)
-        max_steps = RoadConfig.from_dict(log.config.model_dump(), agent_speed=case.agent_speed).max_steps
-        planner = MCTSPlanner(config, case.agent_speed, max_steps, seed=case.planner_seed())
+    planner, model = case_agent(case, world, playouts, model_dir)
     result = run_episode(world, planner, model, case.agent_speed, case.rollout_steps or 1)
     record = {
         **asdict(case),
