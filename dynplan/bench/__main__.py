@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
         table.add_column(column)
     for case, figures in results.items():
         for figure, value in figures.items():
-            table.add_row(case, figure, f"{value:,}")
+            table.add_row(case, figure, f"{value:,}" if isinstance(value, int | float) else str(value))
     Console().print(table)
     return 0
 
