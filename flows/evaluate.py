@@ -3,6 +3,8 @@
 Records the evaluation episodes if they are missing (seeds 1,000,000 …), plays every (technique, agent speed,
 rollout steps, episode) case as its own Prefect task — skipping cases whose result file exists, so an
 interrupted evaluation resumes — then aggregates every result present into table1.json / table1.md.
+`--first-seed 2000000` with another `--log-dir` and `--results-dir` plays the validation episodes instead, where
+a world model's settings are chosen (`--occupancy`, `--model-dir`).
 """
 
 from __future__ import annotations
@@ -26,8 +28,10 @@ from dynplan.evaluation.protocol import (
     AGENT_SPEEDS,
     EVAL_EPISODES,
     EVAL_SEED_START,
+    LEARNED,
     MODELS,
     ROLLOUT_STEPS,
+    VALIDATION_SEED_START,
     WORLD_MODELS,
     Case,
     cases,
@@ -41,13 +45,15 @@ from flows.collect import collect_episodes
 from flows.runners import dask_address, task_runner
 
 DEFAULT_COMMAND = "python -m flows.evaluate"
+RESULTS_DIR = "datasets/results"
 #: Episodes between rewrites of the table while an evaluation runs.
 TABLE_EVERY = 25
 
 
 @task(name="evaluate-episode", cache_policy=NO_CACHE)
-def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int, model_dir: str | None = None) -> dict:
-    return run_case(Case(**case), log_dir, results_dir, playouts, model_dir)
+def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int, model_dir: str | None = None,
+                       occupancy: float | None = None) -> dict:  # fmt: skip
+    return run_case(Case(**case), log_dir, results_dir, playouts, model_dir, occupancy)
 
 
 @flow(name="evaluate-planner", log_prints=True)
@@ -55,17 +61,19 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      rollout_steps: list[int] | None = None, episodes: int = EVAL_EPISODES,
                      playouts: int = 100, log_dir: str = "datasets/eval_logs",
                      results_dir: str = "datasets/results", command: str = DEFAULT_COMMAND,
-                     models: list[str] | None = None, model_dir: str | None = None) -> list[dict]:  # fmt: skip
+                     models: list[str] | None = None, model_dir: str | None = None,
+                     first_seed: int = EVAL_SEED_START, occupancy: float | None = None) -> list[dict]:  # fmt: skip
     """Play the missing cases and write the aggregated table. Learned techniques use the committed weights, or
-    those under `model_dir/<model>/` (a pipeline's own)."""
+    those under `model_dir/<model>/` (a pipeline's own), at their configuration's occupancy threshold unless
+    `occupancy` is given. Episodes are seeds `first_seed` … (the evaluation's by default)."""
     techniques = techniques or ["oracle", "zero", "random"]
-    collect_episodes(out=log_dir, episodes=episodes, seed=EVAL_SEED_START)
+    collect_episodes(out=log_dir, episodes=episodes, seed=first_seed)
     todo = pending(cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
-                         episodes, models=tuple(models or ["default"])), results_dir, log_dir, playouts,
-                   model_dir)  # fmt: skip
+                         episodes, first_seed, tuple(models or ["default"])), results_dir, log_dir, playouts,
+                   model_dir, occupancy)  # fmt: skip
     print(f"{len(todo)} episodes to play")
     futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
-                                     unmapped(playouts), unmapped(model_dir))  # fmt: skip
+                                     unmapped(playouts), unmapped(model_dir), unmapped(occupancy))  # fmt: skip
     for done, future in enumerate(progress(as_completed(futures), total=len(futures), description="evaluate"), 1):
         future.result()
         if done % TABLE_EVERY == 0:  # a long evaluation that is stopped still leaves an up-to-date table
@@ -91,10 +99,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--episodes", type=int, default=EVAL_EPISODES, help="evaluation episodes (default 100)")
     parser.add_argument("--playouts", type=int, default=100, help="MCTS playouts per decision (default 100)")
     parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
-    parser.add_argument("--results-dir", default="datasets/results", help="per-episode results and the table")
+    parser.add_argument("--results-dir", default=RESULTS_DIR, help="per-episode results and the table")
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
     parser.add_argument("--model-dir", help="learned world models under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
                         "(default: the committed weights)")  # fmt: skip
+    parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
+                        help=f"seed of the first episode (default {EVAL_SEED_START:,}, the evaluation's; "
+                        f"{VALIDATION_SEED_START:,}: the validation episodes)")  # fmt: skip
+    parser.add_argument("--occupancy", type=float, help="the learned models' occupancy threshold in [0, 1) "
+                        "(0: off; default: each configuration's own)")  # fmt: skip
     parser.add_argument("--workers", type=int, help="episodes played at once locally (default: one per core)")
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     args = parser.parse_args(argv)
@@ -103,9 +116,16 @@ def main(argv: list[str] | None = None) -> list[dict]:
             RoadConfig(agent_speed=speed)
         for k in args.rollout_steps:
             MCTSConfig(rollout_steps=k, playouts=args.playouts)
-        CollectPlan(episodes=args.episodes, seed=EVAL_SEED_START)
+        CollectPlan(episodes=args.episodes, seed=args.first_seed)
     except ConfigError as error:
         parser.error(str(error))
+    if args.first_seed != EVAL_SEED_START and args.results_dir == RESULTS_DIR:
+        parser.error(f"--first-seed={args.first_seed} needs its own --results-dir: {RESULTS_DIR} holds the "
+                     f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
+    if args.occupancy is not None and not 0.0 <= args.occupancy < 1.0:
+        parser.error(f"--occupancy={args.occupancy} is invalid; valid range [0, 1)")
+    if args.occupancy and "paper" in args.models and set(args.techniques) & set(LEARNED):
+        parser.error("--occupancy needs patch-local codes; the paper configuration's tokenizer has none")
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
@@ -116,7 +136,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     rows = evaluate_planner.with_options(task_runner=runner)(
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
-        command=command, models=args.models, model_dir=args.model_dir,
+        command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
+        occupancy=args.occupancy,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))

@@ -196,6 +196,10 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     stale = {k: v for k, v in records[0].items() if k != "occupancy"}  # played before the threshold existed
     all_cases[0].result_path(tmp_path).write_text(json.dumps(stale))
     assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
+    other = run_case(all_cases[0], eval_logs, tmp_path, playouts=5, occupancy=0.3)  # a threshold being validated
+    assert other["occupancy"] == 0.3
+    assert pending(all_cases, tmp_path, eval_logs, playouts=5, occupancy=0.3) == []
+    assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
     assert all_cases[0].result_path(tmp_path).parent.parent.name == "samples5-default"
     rows = aggregate(records)
     assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}
@@ -231,3 +235,20 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
     with pytest.raises(SystemExit):
         main(["--workers", "0"])
     assert "--workers=0 is invalid; valid range [1, 256]" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--occupancy", "1.5"], "--occupancy=1.5 is invalid; valid range [0, 1)"),
+        (["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"], "--occupancy needs patch-local codes"),
+        (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --results-dir"),
+        (["--first-seed", "-1"], "seed"),
+    ],
+)
+def test_evaluate_command_line_names_bad_validation_settings(argv, message, capsys):
+    from flows.evaluate import main
+
+    with pytest.raises(SystemExit):
+        main(argv)
+    assert message in capsys.readouterr().err

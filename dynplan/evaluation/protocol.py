@@ -28,6 +28,9 @@ from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
 
 #: The evaluation episodes' seeds: a range of their own, far from training seeds (which start at 0).
 EVAL_SEED_START = 1_000_000
+#: Validation episodes: where a world model's settings (prior epoch, occupancy threshold) are chosen, so that the
+#: evaluation episodes only ever score a choice already made.
+VALIDATION_SEED_START = 2_000_000
 EVAL_EPISODES = 100
 AGENT_SPEEDS = (1.0, 0.5)
 ROLLOUT_STEPS = (1, 3, 5, 10)
@@ -153,17 +156,20 @@ def _world_model_identity(model: str, model_dir: str | None) -> str:
     return _identity(_stamp(world_model_paths(model, model_dir)))
 
 
-def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir: str | None = None) -> dict:
+def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir: str | None = None,
+                occupancy: float | None = None) -> dict:  # fmt: skip
     """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights and
-    occupancy threshold (recorded only where it is on, so that results from before it existed stay valid)."""
+    occupancy threshold (`occupancy` None: the configuration's own; recorded only where it is on, so that results
+    from before it existed stay valid)."""
     from dynplan.models.world_model import OCCUPANCY
 
     source = log_path(log_dir, case.seed)
     provenance = {"playouts": playouts, "log_sha256": sha256_file(source) if source.exists() else None}
     if case.model is not None:
         provenance["world_model_sha256"] = _world_model_identity(case.model, model_dir)
-        if OCCUPANCY[case.model]:
-            provenance["occupancy"] = OCCUPANCY[case.model]
+        threshold = OCCUPANCY[case.model] if occupancy is None else occupancy
+        if threshold:
+            provenance["occupancy"] = threshold
     return provenance
 
 
@@ -194,11 +200,12 @@ def case_agent(case: Case, world: World, playouts: int = 100, model_dir: str | N
 
 
 def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100,
-             model_dir: str | None = None) -> dict:  # fmt: skip
+             model_dir: str | None = None, occupancy: float | None = None) -> dict:  # fmt: skip
     """Play one case against its recorded episode and write its result JSON — or return the existing one, if it
-    was played with the same playouts, against the same log and (learned techniques) the same weights.
-    `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`)."""
-    provenance = _provenance(case, log_dir, playouts, model_dir)
+    was played with the same playouts, against the same log and (learned techniques) the same weights and
+    occupancy threshold. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`);
+    `occupancy`: the learned model's threshold (None: its configuration's own)."""
+    provenance = _provenance(case, log_dir, playouts, model_dir, occupancy)
     existing = _existing(case, results_dir, provenance)
     if existing is not None:
         return existing
@@ -209,7 +216,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
     if log.seed != case.seed:
         raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {case.seed}")
     world = log.world()
-    planner, model = case_agent(case, world, playouts, model_dir)
+    planner, model = case_agent(case, world, playouts, model_dir, occupancy)
     result = run_episode(world, planner, model, case.agent_speed, case.rollout_steps or 1)
     record = {
         **asdict(case),
@@ -223,7 +230,8 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
     return record
 
 
-def pending(all_cases: list[Case], results_dir: str | os.PathLike, log_dir: str | os.PathLike,
-            playouts: int = 100, model_dir: str | None = None) -> list[Case]:  # fmt: skip
+def pending(all_cases: list[Case], results_dir: str | os.PathLike, log_dir: str | os.PathLike, playouts: int = 100,
+            model_dir: str | None = None, occupancy: float | None = None) -> list[Case]:  # fmt: skip
     """The cases without a reusable result (what a resumed evaluation still has to play)."""
-    return [c for c in all_cases if _existing(c, results_dir, _provenance(c, log_dir, playouts, model_dir)) is None]
+    return [c for c in all_cases
+            if _existing(c, results_dir, _provenance(c, log_dir, playouts, model_dir, occupancy)) is None]  # fmt: skip
