@@ -60,7 +60,7 @@ def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int
 def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[float] | None = None,
                      rollout_steps: list[int] | None = None, episodes: int = EVAL_EPISODES,
                      playouts: int = 100, log_dir: str = "datasets/eval_logs",
-                     results_dir: str = "datasets/results", command: str = DEFAULT_COMMAND,
+                     results_dir: str = RESULTS_DIR, command: str = DEFAULT_COMMAND,
                      models: list[str] | None = None, model_dir: str | None = None,
                      first_seed: int = EVAL_SEED_START, occupancy: float | None = None) -> list[dict]:  # fmt: skip
     """Play the missing cases and write the aggregated table. Learned techniques use the committed weights, or
