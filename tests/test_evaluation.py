@@ -199,6 +199,7 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     other = run_case(all_cases[0], eval_logs, tmp_path, playouts=5, occupancy=0.3)  # a threshold being validated
     assert other["occupancy"] == 0.3
     assert pending(all_cases, tmp_path, eval_logs, playouts=5, occupancy=0.3) == []
+    assert pending(all_cases, tmp_path, eval_logs, playouts=5, occupancy=0.0) == [all_cases[0]]  # off is not 0.3
     assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
     assert all_cases[0].result_path(tmp_path).parent.parent.name == "samples5-default"
     rows = aggregate(records)
