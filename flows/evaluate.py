@@ -15,6 +15,7 @@ import os
 import shlex
 import sys
 from dataclasses import asdict
+from pathlib import Path
 
 import torch
 from prefect import flow, task, unmapped
@@ -119,7 +120,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         CollectPlan(episodes=args.episodes, seed=args.first_seed)
     except ConfigError as error:
         parser.error(str(error))
-    if args.first_seed != EVAL_SEED_START and args.results_dir == RESULTS_DIR:
+    if args.first_seed != EVAL_SEED_START and Path(args.results_dir).resolve() == Path(RESULTS_DIR).resolve():
         parser.error(f"--first-seed={args.first_seed} needs its own --results-dir: {RESULTS_DIR} holds the "
                      f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
     if args.occupancy is not None and not 0.0 <= args.occupancy < 1.0:
