@@ -4,7 +4,7 @@ Records the evaluation episodes if they are missing (seeds 1,000,000 …), plays
 rollout steps, episode) case as its own Prefect task — skipping cases whose result file exists, so an
 interrupted evaluation resumes — then aggregates every result present into table1.json / table1.md.
 `--first-seed 2000000` with another `--log-dir` and `--results-dir` plays the validation episodes instead, where
-a world model's settings are chosen (`--occupancy`, `--model-dir`).
+a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`).
 """
 
 from __future__ import annotations
@@ -53,8 +53,8 @@ TABLE_EVERY = 25
 
 @task(name="evaluate-episode", cache_policy=NO_CACHE)
 def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int, model_dir: str | None = None,
-                       occupancy: float | None = None) -> dict:  # fmt: skip
-    return run_case(Case(**case), log_dir, results_dir, playouts, model_dir, occupancy)
+                       caution: dict[str, float] | None = None) -> dict:  # fmt: skip
+    return run_case(Case(**case), log_dir, results_dir, playouts, model_dir, caution)
 
 
 @flow(name="evaluate-planner", log_prints=True)
@@ -63,18 +63,19 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      playouts: int = 100, log_dir: str = "datasets/eval_logs",
                      results_dir: str = RESULTS_DIR, command: str = DEFAULT_COMMAND,
                      models: list[str] | None = None, model_dir: str | None = None,
-                     first_seed: int = EVAL_SEED_START, occupancy: float | None = None) -> list[dict]:  # fmt: skip
+                     first_seed: int = EVAL_SEED_START,
+                     caution: dict[str, float] | None = None) -> list[dict]:  # fmt: skip
     """Play the missing cases and write the aggregated table. Learned techniques use the committed weights, or
-    those under `model_dir/<model>/` (a pipeline's own), at their configuration's occupancy threshold unless
-    `occupancy` is given. Episodes are seeds `first_seed` … (the evaluation's by default)."""
+    those under `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution`
+    (field → value) overrides it. Episodes are seeds `first_seed` … (the evaluation's by default)."""
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=first_seed)
     todo = pending(cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
                          episodes, first_seed, tuple(models or ["default"])), results_dir, log_dir, playouts,
-                   model_dir, occupancy)  # fmt: skip
+                   model_dir, caution)  # fmt: skip
     print(f"{len(todo)} episodes to play")
     futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
-                                     unmapped(playouts), unmapped(model_dir), unmapped(occupancy))  # fmt: skip
+                                     unmapped(playouts), unmapped(model_dir), unmapped(caution))  # fmt: skip
     for done, future in enumerate(progress(as_completed(futures), total=len(futures), description="evaluate"), 1):
         future.result()
         if done % TABLE_EVERY == 0:  # a long evaluation that is stopped still leaves an up-to-date table
@@ -107,8 +108,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
                         help=f"seed of the first episode (default {EVAL_SEED_START:,}, the evaluation's; "
                         f"{VALIDATION_SEED_START:,}: the validation episodes)")  # fmt: skip
-    parser.add_argument("--occupancy", type=float, help="the learned models' occupancy threshold in [0, 1) "
-                        "(0: off; default: each configuration's own)")  # fmt: skip
+    parser.add_argument(
+        "--occupancy",
+        type=float,
+        help="the learned models' occupancy threshold in [0, 1) (0: off; default: each configuration's own)",
+    )
+    parser.add_argument("--margin", type=int, help="pixels the learned models widen each predicted obstacle by "
+                        "along its lane, in [0, 4] (0: off; default: each configuration's own)")  # fmt: skip
     parser.add_argument("--workers", type=int, help="episodes played at once locally (default: one per core)")
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     args = parser.parse_args(argv)
@@ -125,6 +131,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                      f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
     if args.occupancy is not None and not 0.0 <= args.occupancy < 1.0:
         parser.error(f"--occupancy={args.occupancy} is invalid; valid range [0, 1)")
+    if args.margin is not None and not 0 <= args.margin <= 4:
+        parser.error(f"--margin={args.margin} is invalid; valid range [0, 4]")
     if args.occupancy and "paper" in args.models and set(args.techniques) & set(LEARNED):
         parser.error("--occupancy needs patch-local codes; the paper configuration's tokenizer has none")
     if args.workers is not None and not 1 <= args.workers <= 256:
@@ -138,7 +146,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
-        occupancy=args.occupancy,
+        caution={name: value for name in ("occupancy", "margin") if (value := getattr(args, name)) is not None} or None,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))

@@ -76,12 +76,14 @@ def test_command_line_summarises_and_writes_the_causes(dying_case, tmp_path):
         main(["--technique", "zero", "--agent-speed", "0.5", "--results-dir", str(results)])
 
 
-def test_deaths_replay_with_the_occupancy_their_result_records(monkeypatch):
+def test_deaths_replay_with_the_caution_their_result_records(monkeypatch):
     import dynplan.analysis.deaths as deaths
 
     seen = []
-    monkeypatch.setattr(deaths, "replay_death", lambda case, log, playouts, models, occupancy: seen.append(occupancy))
+    monkeypatch.setattr(deaths, "replay_death", lambda case, log, playouts, models, caution: seen.append(caution))
     record = {"technique": "samples5", "agent_speed": 1.0, "rollout_steps": 1, "seed": 1, "model": "default",
               "outcome": "death", "playouts": 100}  # fmt: skip
-    deaths.death_causes([record, {**record, "occupancy": 0.1}, {**record, "outcome": "goal"}])
-    assert seen == [0.0, 0.1]  # absent: played before occupancy existed
+    deaths.death_causes([record, {**record, "occupancy": 0.1}, {**record, "occupancy": 0.1, "margin": 1},
+                         {**record, "outcome": "goal"}])  # fmt: skip
+    # absent: off (played before the setting existed), not the configuration's current own
+    assert seen == [{"occupancy": 0, "margin": 0}, {"occupancy": 0.1, "margin": 0}, {"occupancy": 0.1, "margin": 1}]

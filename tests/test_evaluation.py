@@ -179,9 +179,9 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     import torch
 
     import dynplan.evaluation.protocol as protocol
+    from dynplan.models.caution import CAUTION
     from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
     from dynplan.models.vqvae import VQVAE, VQVAEConfig
-    from dynplan.models.world_model import OCCUPANCY
 
     torch.manual_seed(0)
     tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
@@ -192,15 +192,18 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
     records = [run_case(c, eval_logs, tmp_path, playouts=5) for c in all_cases]
     assert records[0]["world_model_sha256"] == "missing+missing" or "+" in records[0]["world_model_sha256"]
-    assert records[0]["occupancy"] == OCCUPANCY["default"] > 0  # a result says which threshold it was played with
+    assert records[0]["occupancy"] == CAUTION["default"].occupancy > 0  # a result says which caution it played with
     stale = {k: v for k, v in records[0].items() if k != "occupancy"}  # played before the threshold existed
     all_cases[0].result_path(tmp_path).write_text(json.dumps(stale))
     assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
-    other = run_case(all_cases[0], eval_logs, tmp_path, playouts=5, occupancy=0.3)  # a threshold being validated
+    other = run_case(all_cases[0], eval_logs, tmp_path, playouts=5, caution={"occupancy": 0.3})  # being validated
     assert other["occupancy"] == 0.3
-    assert pending(all_cases, tmp_path, eval_logs, playouts=5, occupancy=0.3) == []
-    assert pending(all_cases, tmp_path, eval_logs, playouts=5, occupancy=0.0) == [all_cases[0]]  # off is not 0.3
+    assert pending(all_cases, tmp_path, eval_logs, playouts=5, caution={"occupancy": 0.3}) == []
+    assert pending(all_cases, tmp_path, eval_logs, playouts=5, caution={"occupancy": 0.0}) == [all_cases[0]]
     assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
+    widened = run_case(all_cases[0], eval_logs, tmp_path, playouts=5, caution={"occupancy": 0.3, "margin": 2})
+    assert (widened["occupancy"], widened["margin"]) == (0.3, 2)
+    assert pending(all_cases, tmp_path, eval_logs, playouts=5, caution={"occupancy": 0.3}) == [all_cases[0]]
     assert all_cases[0].result_path(tmp_path).parent.parent.name == "samples5-default"
     rows = aggregate(records)
     assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}
@@ -242,6 +245,7 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
     ("argv", "message"),
     [
         (["--occupancy", "1.5"], "--occupancy=1.5 is invalid; valid range [0, 1)"),
+        (["--margin", "5"], "--margin=5 is invalid; valid range [0, 4]"),
         (["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"], "--occupancy needs patch-local codes"),
         (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --results-dir"),
         (["--first-seed", "-1"], "seed"),

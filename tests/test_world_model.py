@@ -3,11 +3,14 @@
 import numpy as np
 import pytest
 import torch
+from hypothesis import given
+from hypothesis import strategies as st
 
 from dynplan.env import GOAL_VALUE, RoadConfig, generate_world
+from dynplan.models.caution import CAUTION, Caution, caution_for
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
 from dynplan.models.vqvae import VQVAE, VQVAEConfig
-from dynplan.models.world_model import LearnedWorldModel, load_world_model, merge_samples
+from dynplan.models.world_model import LearnedWorldModel, load_world_model, merge_samples, widen_obstacles
 from dynplan.planning.episode import run_episode
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
 from dynplan.training.checkpoint import CheckpointError
@@ -110,6 +113,44 @@ def test_occupancy_names_its_range_and_needs_patch_local_codes(tiny_model, tiny_
         LearnedWorldModel(*tiny_local_model, occupancy=1.0)
     with pytest.raises(ValueError, match="occupancy needs a tokenizer with patch-local codes"):
         LearnedWorldModel(*tiny_model, occupancy=0.1)
+
+
+@given(st.integers(0, 4), st.lists(st.tuples(st.integers(0, 11), st.integers(0, 11), st.integers(1, 243)), max_size=6))
+def test_widening_draws_each_obstacle_on_its_row_neighbours_only(margin, obstacles):
+    frames = np.zeros((2, 12, 12), np.uint8)
+    frames[1, 4:6, 4:6] = GOAL_VALUE
+    for y, x, value in obstacles:
+        frames[1, y, x] = value if value != GOAL_VALUE else 1
+    widened = widen_obstacles(frames, margin)
+    assert not widened[0].any()  # frames are widened each on its own
+    expected = frames[1].astype(int).copy()
+    expected[expected == GOAL_VALUE] = 0
+    for y, x, _ in obstacles:  # by hand: the largest obstacle value within `margin` columns in the same row
+        for c in range(max(x - margin, 0), min(x + margin + 1, 12)):
+            expected[y, c] = max(expected[y, c], frames[1, y, x])
+    goal_kept = (frames[1] == GOAL_VALUE) & (expected == 0)
+    np.testing.assert_array_equal(widened[1], np.where(goal_kept, GOAL_VALUE, expected))
+    np.testing.assert_array_equal(widen_obstacles(frames, 0), frames)
+
+
+def test_margin_widens_the_planners_frames_and_names_its_range(tiny_model):
+    tokenizer, prior = tiny_model
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    plain = LearnedWorldModel(tokenizer, prior, samples=2, seed=3).predict(frames, 2).frames
+    model = LearnedWorldModel(tokenizer, prior, samples=2, seed=3, margin=1)
+    np.testing.assert_array_equal(model.predict(frames, 2).frames, widen_obstacles(plain, 1))
+    assert model.name == "model(samples=2, futures=0, margin=1)"
+    with pytest.raises(ValueError, match=r"margin must be in \[0, 4\] pixels"):
+        LearnedWorldModel(tokenizer, prior, margin=5)
+
+
+def test_each_configuration_has_its_caution_and_overrides_are_checked():
+    assert CAUTION["paper"] == Caution()  # the paper's method: the argmax alone
+    assert caution_for("default", {"margin": 2}).occupancy == CAUTION["default"].occupancy
+    assert caution_for("default", {"margin": 2}).recorded()["margin"] == 2
+    assert Caution().recorded() == {}  # a result played without caution records nothing (as before it existed)
+    with pytest.raises(ValueError, match=r"margin=7 is invalid .* valid range \[0, 4\]"):
+        caution_for("default", {"margin": 7})
 
 
 def test_plans_an_episode_through_the_seam(tiny_model):

@@ -28,6 +28,7 @@ from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.evaluation.protocol import LEARNED, MODELS, ROLLOUT_STEPS, WORLD_MODELS, Case, case_agent, log_path
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import read_episode_log
+from dynplan.models.caution import Caution
 from dynplan.planning.episode import run_episode
 
 CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
@@ -78,11 +79,11 @@ class Death:
 
 
 def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str | None = None,
-                 occupancy: float = 0.0) -> Death:  # fmt: skip
+                 caution: dict[str, float] | None = None) -> Death:  # fmt: skip
     """Replay a case whose recorded outcome is a death and classify it (raises if the replay does not die).
-    `occupancy`: the threshold the learned model played with (its result records it where it was on)."""
+    `caution`: the settings the learned model played with (`recorded_caution` of its result)."""
     world = read_episode_log(log_path(log_dir, case.seed)).world()
-    planner, model = case_agent(case, world, playouts, model_dir, occupancy)
+    planner, model = case_agent(case, world, playouts, model_dir, caution)
     last: dict = {}
 
     def remember(t: int, position: np.ndarray, prediction, decision) -> None:
@@ -98,6 +99,12 @@ def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str |
     return Death(case.seed, case.rollout_steps, t, position, cause)
 
 
+def recorded_caution(record: dict) -> dict[str, float]:
+    """The caution a result was played with: every setting it records, and off where it records none (a result
+    records only the settings that were on, and none from before a setting existed)."""
+    return {name: record.get(name, 0) for name in Caution.model_fields}
+
+
 def death_causes(records: list[dict], log_dir: str = "datasets/eval_logs", model_dir: str | None = None) -> list[Death]:
     """Replay and classify the deaths among evaluation records (the per-episode result JSONs)."""
     from dynplan.progress import progress
@@ -109,7 +116,7 @@ def death_causes(records: list[dict], log_dir: str = "datasets/eval_logs", model
             log_dir,
             r["playouts"],
             model_dir,
-            r.get("occupancy", 0.0),
+            recorded_caution(r),
         )
         for r in progress(deaths, total=len(deaths), description="replay deaths")
     ]

@@ -98,20 +98,20 @@ def figure1(model: ForwardModel, path: str | os.PathLike, seed: int = EVAL_SEED_
 
 
 def world_model(model: str, samples: int = 0, futures: int = 0, prior: str | None = None,
-                occupancy: float | None = None) -> ForwardModel:  # fmt: skip
+                caution: dict[str, float] | None = None) -> ForwardModel:  # fmt: skip
     """The committed world model of configuration `model`, or its tokenizer with the prior checkpoint `prior`;
-    `occupancy` None: the configuration's own."""
+    `caution`: what overrides the configuration's own (field → value)."""
     from dynplan.models import pretrained_path
-    from dynplan.models.world_model import OCCUPANCY, LearnedWorldModel, load_world_model
+    from dynplan.models.caution import caution_for
+    from dynplan.models.world_model import LearnedWorldModel, load_world_model
     from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
     from dynplan.training.vqvae import load_vqvae_checkpoint
 
-    occupancy = OCCUPANCY[model] if occupancy is None else occupancy
     if prior is None:
-        return load_world_model(model=model, samples=samples, futures=futures, occupancy=occupancy)
+        return load_world_model(model=model, samples=samples, futures=futures, caution=caution)
     tokenizer = load_vqvae_checkpoint(pretrained_path("vqvae", model))
     return LearnedWorldModel(tokenizer, load_pixelcnn_checkpoint(prior), samples=samples, futures=futures,
-                             occupancy=occupancy)  # fmt: skip
+                             **caution_for(model, caution).model_dump())  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -120,7 +120,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--samples", type=int, nargs="+", default=[0, 5], help="decoder samples (0: Mid)")
     parser.add_argument("--futures", type=int, nargs="*", default=[], help="also: code futures sampled from the prior")
     parser.add_argument("--prior", help="a prior checkpoint to use instead of the committed one")
-    parser.add_argument("--occupancy", type=float, nargs="+", help="obstacle-probability thresholds to compare "
+    parser.add_argument(
+        "--occupancy",
+        type=float,
+        nargs="+",
+        help="obstacle-probability thresholds to compare (0: off; default: the configuration's own)",
+    )
+    parser.add_argument("--margin", type=int, nargs="+", help="obstacle margins along the lane to compare, in pixels "
                         "(0: off; default: the configuration's own)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--plot", help="write the error-against-horizon figure here")
@@ -128,18 +134,20 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     variants = [(samples, 0) for samples in args.samples] + [(0, futures) for futures in args.futures]
     curves = {}
-    for occupancy in args.occupancy or [None]:
+    cautions = [{name: value for name, value in (("occupancy", occupancy), ("margin", margin)) if value is not None}
+                for occupancy in args.occupancy or [None] for margin in args.margin or [None]]  # fmt: skip
+    for caution in cautions:
         for samples, futures in variants:
-            model = world_model(args.model, samples, futures, args.prior, occupancy)
+            model = world_model(args.model, samples, futures, args.prior, caution)
             variant = f"{futures} futures" if futures else "mid" if samples == 0 else f"{samples} samples"
-            name = f"{args.model}, {variant}" + (f", occupancy {model.occupancy:g}" if model.occupancy else "")
+            settings = (("occupancy", model.occupancy), ("margin", model.margin))
+            name = f"{args.model}, {variant}" + "".join(f", {key} {value:g}" for key, value in settings if value)
             curves[name] = errors_by_horizon(model, args.episodes)
             print(json.dumps({name: curves[name]}))
     if args.plot:
         plot_errors(curves, args.plot)
     if args.figure:
-        occupancy = (args.occupancy or [None])[0]
-        figure1(world_model(args.model, max(args.samples), 0, args.prior, occupancy), args.figure)
+        figure1(world_model(args.model, max(args.samples), 0, args.prior, cautions[0]), args.figure)
 
 
 if __name__ == "__main__":

@@ -13,9 +13,10 @@ import torch
 
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.models.caution import caution_for
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
 from dynplan.models.vqvae import PRESETS, VQVAE
-from dynplan.models.world_model import OCCUPANCY, LearnedWorldModel, load_world_model
+from dynplan.models.world_model import LearnedWorldModel, load_world_model
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
 from dynplan.training.checkpoint import CheckpointError
 
@@ -27,16 +28,17 @@ def bench_decision(decisions: int = 30, threads: int = 2) -> dict[str, dict[str,
     torch.set_num_threads(threads)
     world = generate_world(RoadConfig(), 2_000_000)
     results = {}
-    variants = (("default", "model_samples5_k3", None), ("default", "model_samples5_k3_no_occupancy", 0.0),
+    off = {"occupancy": 0.0, "margin": 0}
+    variants = (("default", "model_samples5_k3", None), ("default", "model_samples5_k3_no_occupancy", off),
                 ("paper", "model_samples5_k3_paper", None))  # fmt: skip
-    for name, case, occupancy in variants:
+    for name, case, caution in variants:
         try:
-            model, weights = load_world_model(model=name, samples=5, occupancy=occupancy), "committed"
+            model, weights = load_world_model(model=name, samples=5, caution=caution), "committed"
         except CheckpointError:
             torch.manual_seed(0)
             prior = ConditionalPixelCNN(PIXELCNN_PRESETS[name])
-            occupancy = OCCUPANCY[name] if occupancy is None else occupancy
-            model = LearnedWorldModel(VQVAE(PRESETS[name]), prior, samples=5, occupancy=occupancy)
+            settings = caution_for(name, caution).model_dump()
+            model = LearnedWorldModel(VQVAE(PRESETS[name]), prior, samples=5, **settings)
             weights = "untrained"
         planner = MCTSPlanner(MCTSConfig(rollout_steps=3), agent_speed=1.0, max_steps=203)
         times = []

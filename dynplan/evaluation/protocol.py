@@ -12,7 +12,7 @@ import json
 import os
 import time
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -22,6 +22,7 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import LogError, read_episode_log
+from dynplan.models.caution import Caution
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
@@ -75,14 +76,16 @@ def _learned_parts(model: str, model_dir: str | None):
 
 
 def learned_model(model: str, samples: int, seed: int, futures: int = 0, model_dir: str | os.PathLike | None = None,
-                  occupancy: float | None = None) -> ForwardModel:  # fmt: skip
+                  caution: Mapping[str, float] | None = None) -> ForwardModel:  # fmt: skip
     """The learned forward model of configuration `model` (loaded once per process and version of the
-    checkpoints; see `world_model_paths`); `occupancy` None: the configuration's own (`OCCUPANCY`)."""
-    from dynplan.models.world_model import OCCUPANCY, LearnedWorldModel
+    checkpoints; see `world_model_paths`), with the configuration's own caution (`CAUTION`) except where
+    `caution` (field → value) overrides it."""
+    from dynplan.models.caution import caution_for
+    from dynplan.models.world_model import LearnedWorldModel
 
     parts = _learned_parts(model, None if model_dir is None else str(model_dir))
-    occupancy = OCCUPANCY[model] if occupancy is None else occupancy
-    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed, occupancy=occupancy)
+    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed,
+                             **caution_for(model, caution).model_dump())  # fmt: skip
 
 
 #: technique → factory of its forward model for (recorded world, case, world-model folder or None) (None: the
@@ -157,19 +160,17 @@ def _world_model_identity(model: str, model_dir: str | None) -> str:
 
 
 def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir: str | None = None,
-                occupancy: float | None = None) -> dict:  # fmt: skip
+                caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
     """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights and
-    occupancy threshold (`occupancy` None: the configuration's own; recorded only where it is on, so that results
-    from before it existed stay valid)."""
-    from dynplan.models.world_model import OCCUPANCY
+    caution (the configuration's own where `caution` does not override it; only the settings that are on are
+    recorded, so that results from before a setting existed stay valid)."""
+    from dynplan.models.caution import caution_for
 
     source = log_path(log_dir, case.seed)
     provenance = {"playouts": playouts, "log_sha256": sha256_file(source) if source.exists() else None}
     if case.model is not None:
         provenance["world_model_sha256"] = _world_model_identity(case.model, model_dir)
-        threshold = OCCUPANCY[case.model] if occupancy is None else occupancy
-        if threshold:
-            provenance["occupancy"] = threshold
+        provenance.update(caution_for(case.model, caution).recorded())
     return provenance
 
 
@@ -180,17 +181,22 @@ def _existing(case: Case, results_dir: str | os.PathLike, provenance: dict) -> d
         record = json.loads(path.read_text())
     except (FileNotFoundError, json.JSONDecodeError):
         return None  # missing, or damaged: recompute
-    keys = provenance.keys() | {"occupancy"}  # a result played with occupancy is not one played without
+    keys = provenance.keys() | set(Caution.model_fields)  # a result played with a caution is not one played without
     return record if all(record.get(k) == provenance.get(k) for k in keys) else None
 
 
-def case_agent(case: Case, world: World, playouts: int = 100, model_dir: str | None = None,
-               occupancy: float | None = None) -> tuple[MCTSPlanner | RandomPlanner, ForwardModel | None]:  # fmt: skip
-    """The planner and forward model that play `case` on its recorded `world`. `occupancy`: a learned model's
-    threshold (None: its configuration's own)."""
+def case_agent(
+    case: Case,
+    world: World,
+    playouts: int = 100,
+    model_dir: str | None = None,
+    caution: Mapping[str, float] | None = None,
+) -> tuple[MCTSPlanner | RandomPlanner, ForwardModel | None]:
+    """The planner and forward model that play `case` on its recorded `world`. `caution`: what overrides a learned
+    model's configuration's own (field → value)."""
     if case.technique in LEARNED:
         samples, futures = LEARNED[case.technique]
-        model = learned_model(case.model, samples, case.planner_seed(), futures, model_dir, occupancy)
+        model = learned_model(case.model, samples, case.planner_seed(), futures, model_dir, caution)
     else:
         model = MODELS[case.technique](world, case, model_dir)
     if case.rollout_steps is None:
@@ -201,12 +207,12 @@ def case_agent(case: Case, world: World, playouts: int = 100, model_dir: str | N
 
 
 def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100,
-             model_dir: str | None = None, occupancy: float | None = None) -> dict:  # fmt: skip
+             model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
     """Play one case against its recorded episode and write its result JSON — or return the existing one, if it
     was played with the same playouts, against the same log and (learned techniques) the same weights and
-    occupancy threshold. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`);
-    `occupancy`: the learned model's threshold (None: its configuration's own)."""
-    provenance = _provenance(case, log_dir, playouts, model_dir, occupancy)
+    caution. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`); `caution`:
+    what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05})."""
+    provenance = _provenance(case, log_dir, playouts, model_dir, caution)
     existing = _existing(case, results_dir, provenance)
     if existing is not None:
         return existing
@@ -217,7 +223,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
     if log.seed != case.seed:
         raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {case.seed}")
     world = log.world()
-    planner, model = case_agent(case, world, playouts, model_dir, occupancy)
+    planner, model = case_agent(case, world, playouts, model_dir, caution)
     result = run_episode(world, planner, model, case.agent_speed, case.rollout_steps or 1)
     record = {
         **asdict(case),
@@ -232,7 +238,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
 
 
 def pending(all_cases: list[Case], results_dir: str | os.PathLike, log_dir: str | os.PathLike, playouts: int = 100,
-            model_dir: str | None = None, occupancy: float | None = None) -> list[Case]:  # fmt: skip
+            model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> list[Case]:  # fmt: skip
     """The cases without a reusable result (what a resumed evaluation still has to play)."""
     return [c for c in all_cases
-            if _existing(c, results_dir, _provenance(c, log_dir, playouts, model_dir, occupancy)) is None]  # fmt: skip
+            if _existing(c, results_dir, _provenance(c, log_dir, playouts, model_dir, caution)) is None]  # fmt: skip

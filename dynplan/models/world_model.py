@@ -13,27 +13,28 @@ stochastic futures from the prior itself (codes drawn at temperature 1) and merg
 the greedy one the same way as decoder samples; `occupancy = p` also marks as obstacles the pixels that the
 prior gives a probability of at least p of holding one, along the greedy future (the prior's own uncertainty
 where the argmax hides it: when an obstacle's next position is split over several codes, the argmax can be the
-empty patch). It needs patch-local codes, each decoding to its own patch.
+empty patch). It needs patch-local codes, each decoding to its own patch. `margin = m` widens every predicted
+obstacle by m pixels along its lane (a row), both ways: the prior places a slow obstacle's sub-pixel phase a pixel
+off often enough that its neighbours are worth avoiding. Each configuration has its own caution (`CAUTION`),
+chosen on validation episodes.
 """
 
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.models.caution import caution_for
 from dynplan.models.generation import generate_fast
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.vqvae import VQVAE
 from dynplan.planning.forward import Prediction, goal_centres
 
-#: Per world-model configuration, the obstacle probability from which the prior's unsure obstacles join the
-#: planner's frames (0: off — the paper's argmax alone). The default's was chosen on validation episodes, not
-#: the evaluation's (README, "Planning with the prior's uncertainty").
-OCCUPANCY = {"default": 0.1, "paper": 0.0}
 #: The value drawn where only the occupancy shows an obstacle: a sedan's, the commonest class (the planner sees
 #: any value other than free and goal as an obstacle).
 UNSURE_OBSTACLE = 144
@@ -56,12 +57,23 @@ def merge_samples(mid: np.ndarray, samples: np.ndarray) -> np.ndarray:
     return np.where(obstacles > 0, obstacles, merged)
 
 
+def widen_obstacles(frames: np.ndarray, margin: int) -> np.ndarray:
+    """frames (..., H, W) uint8 with every obstacle pixel also drawn on the `margin` pixels either side of it in its
+    row (the largest obstacle value where several reach; over free road and goal alike)."""
+    obstacles = np.where((frames != FREE) & (frames != GOAL_VALUE), frames, 0)
+    widened = obstacles.copy()
+    for shift in range(1, margin + 1):
+        np.maximum(widened[..., shift:], obstacles[..., :-shift], out=widened[..., shift:])
+        np.maximum(widened[..., :-shift], obstacles[..., shift:], out=widened[..., :-shift])
+    return np.where(widened > 0, widened, frames)
+
+
 class LearnedWorldModel:
     """Forward model from a trained tokenizer and prior. `predict` takes the observed frames (at least the
     last 4) and returns uint8 (k, H, W) frames as the planner sees them."""
 
     def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, futures: int = 0,
-                 seed: int = 0, occupancy: float = 0.0):  # fmt: skip
+                 seed: int = 0, occupancy: float = 0.0, margin: int = 0):  # fmt: skip
         if tokenizer.config.codebook_size != prior.config.codebook_size:
             raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
                              f"{tokenizer.config.codebook_size}")  # fmt: skip
@@ -69,13 +81,18 @@ class LearnedWorldModel:
             raise ValueError(f"samples and futures must be >= 0, got {samples}, {futures}")
         if not 0.0 <= occupancy < 1.0:
             raise ValueError(f"occupancy must be in [0, 1) (0: off), got {occupancy}")
+        if not 0 <= margin <= 4:
+            raise ValueError(f"margin must be in [0, 4] pixels (0: off), got {margin}")
         if occupancy and not (tokenizer.config.local and tokenizer.config.n_codebooks == 1):
             raise ValueError("occupancy needs a tokenizer with patch-local codes (local=True, n_codebooks=1), "
                              f"got {tokenizer.config.name!r}")  # fmt: skip
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
-        self.samples, self.futures, self.occupancy = samples, futures, occupancy
+        self.samples, self.futures, self.occupancy, self.margin = samples, futures, occupancy, margin
         self.generator = torch.Generator().manual_seed(seed)
-        self.name = f"model(samples={samples}, futures={futures}" + (f", occupancy={occupancy})" if occupancy else ")")
+        caution = {"occupancy": occupancy, "margin": margin}
+        self.name = (
+            f"model(samples={samples}, futures={futures}" + "".join(f", {k}={v}" for k, v in caution.items() if v) + ")"
+        )
         self.context = prior.config.context
         self._code_obstacles: torch.Tensor | None = None
 
@@ -145,14 +162,16 @@ class LearnedWorldModel:
             others.append(self.tokenizer.decode(sampled.flatten(0, 1)).numpy().reshape(self.futures, k, *mid.shape[1:]))
         if others:
             mid = merge_samples(mid, np.concatenate(others))
+        if self.margin:
+            mid = widen_obstacles(mid, self.margin)
         return Prediction.from_frames(mid)
 
 
-def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0,
-                     futures: int = 0, seed: int = 0, occupancy: float | None = None) -> LearnedWorldModel:  # fmt: skip
+def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0, futures: int = 0,
+                     seed: int = 0, caution: Mapping[str, float] | None = None) -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
-    pretrained checkpoints of the configuration `model` ("default" or "paper"). `occupancy`: None for the
-    configuration's own (`OCCUPANCY`)."""
+    pretrained checkpoints of the configuration `model` ("default" or "paper"), with the configuration's own
+    caution (`CAUTION`) except where `caution` (field → value) overrides it."""
     from dynplan.models import pretrained_path
     from dynplan.training.checkpoint import CheckpointError
     from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
@@ -167,5 +186,4 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
         raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
                               f"`python -m flows.train vqvae|pixelcnn --model {model}`")  # fmt: skip
     tokenizer, prior = load_vqvae_checkpoint(paths[0]), load_pixelcnn_checkpoint(paths[1])
-    occupancy = OCCUPANCY.get(model, 0.0) if occupancy is None else occupancy
-    return LearnedWorldModel(tokenizer, prior, samples, futures, seed, occupancy)
+    return LearnedWorldModel(tokenizer, prior, samples, futures, seed, **caution_for(model, caution).model_dump())
