@@ -31,7 +31,7 @@ class Caution(Config):
 
 #: Per world-model configuration, its caution — the default's chosen on validation episodes, not the
 #: evaluation's (README, "Planning with the prior's uncertainty"); the paper's is off (the paper's method).
-CAUTION = {"default": Caution(occupancy=0.1), "paper": Caution()}
+CAUTION = {"default": Caution(occupancy=0.1, margin=1), "paper": Caution()}
 
 
 def caution_for(model: str, overrides: Mapping[str, float] | None = None) -> Caution:
