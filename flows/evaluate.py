@@ -40,6 +40,7 @@ from dynplan.evaluation.protocol import (
     run_case,
 )
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
+from dynplan.models.caution import Caution
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
 from flows.collect import collect_episodes
@@ -146,7 +147,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
-        caution={name: value for name in ("occupancy", "margin") if (value := getattr(args, name)) is not None} or None,
+        caution={name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None} or None,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))
