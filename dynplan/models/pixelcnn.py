@@ -170,14 +170,19 @@ class ConditionalPixelCNN(nn.Module):
             v, h = layer(v, h, condition)
         return h
 
+    def teacher_forced_logits(self, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """Channels-last logits (B, h, w, K) of every position of `target` (B, h, w), each given the codes of
+        `target` before it and `context` (B, 4, h, w): one pass for all positions, with no loss computed."""
+        hidden = self.head[:-1](self._features(self.embed(target.long()).permute(0, 3, 1, 2), self.condition(context)))
+        # The last 1 × 1 convolution as a matrix product over channels-last features: the K-way (log-)softmax then
+        # runs over contiguous rows (1.3–1.4× faster training steps on a CPU than over the channel axis).
+        out = self.head[-1]
+        return F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)
+
     def forward(self, context: torch.Tensor, target: torch.Tensor) -> PriorOutput:
         """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w)."""
         target = target.long()
-        hidden = self.head[:-1](self._features(self.embed(target).permute(0, 3, 1, 2), self.condition(context)))
-        # The last 1 × 1 convolution as a matrix product over channels-last features: the K-way log-softmax then
-        # runs over contiguous rows (1.3–1.4× faster training steps on a CPU than over the channel axis).
-        out = self.head[-1]
-        logits = F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)  # (B, h, w, K)
+        logits = self.teacher_forced_logits(context, target)  # (B, h, w, K)
         loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
         accuracy = (logits.argmax(-1) == target).float().mean()
         return PriorOutput(logits.permute(0, 3, 1, 2), loss, accuracy)

@@ -116,8 +116,9 @@ class LearnedWorldModel:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)  # the same sums whatever the caller's threads: a result replays exactly
         try:
-            logits = self.prior(windows.permute(0, 3, 1, 2), grids).logits  # (k, K, h, w)
-            probs = torch.softmax(logits.permute(0, 2, 3, 1), dim=-1)  # (k, h, w, K)
+            # Logits only: the training forward's loss and accuracy over K = 4096 codes cost more than the rest.
+            logits = self.prior.teacher_forced_logits(windows.permute(0, 3, 1, 2), grids)  # (k, h, w, K)
+            probs = torch.softmax(logits, dim=-1)
             patches = (probs @ table).reshape(k, h, w, ph, pw)
         finally:
             torch.set_num_threads(threads)
