@@ -24,3 +24,21 @@ def test_committed_learned_rows_match_their_episodes(folder):
     table = _learned(json.loads((folder / "table1.json").read_text()))
     assert table, f"{folder}/table1.json has no learned rows"
     assert _learned(aggregate(load_results(folder))) == table
+
+
+README = RESULTS.parents[1] / "README.md"
+TABLE_MARKER = "<!-- table1: copied from datasets/results/table1.md -->"
+
+
+def _table_lines(text: str) -> list[str]:
+    """The Markdown table rows of `text` (lines starting with '|'), in order."""
+    return [line for line in text.splitlines() if line.startswith("|")]
+
+
+def test_readme_table1_is_the_committed_table():
+    """The README's Table 1 is a copy of datasets/results/table1.md: it must not drift from the committed results
+    (regenerate with `python -m flows.evaluate`, then paste the table's rows after the marker)."""
+    readme = README.read_text()
+    assert TABLE_MARKER in readme, f"README.md lost its marker {TABLE_MARKER!r}"
+    copied = readme.split(TABLE_MARKER, 1)[1].lstrip("\n").split("\n\n", 1)[0]
+    assert _table_lines(copied) == _table_lines((RESULTS / "table1.md").read_text())
