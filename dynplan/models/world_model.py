@@ -116,7 +116,7 @@ class LearnedWorldModel:
         threads = torch.get_num_threads()
         torch.set_num_threads(1)  # the same sums whatever the caller's threads: a result replays exactly
         try:
-            # Logits only: the training forward's loss and accuracy over K = 4096 codes cost more than the rest.
+            # Logits only: the training forward also takes a loss and accuracy over all K codes (a fifth of the pass).
             logits = self.prior.teacher_forced_logits(windows.permute(0, 3, 1, 2), grids)  # (k, h, w, K)
             probs = torch.softmax(logits, dim=-1)
             patches = (probs @ table).reshape(k, h, w, ph, pw)
