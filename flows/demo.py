@@ -1,4 +1,4 @@
-"""`python -m flows.demo`: play one demonstration episode and write its GIF (the README's main job for now)."""
+"""`python -m flows.demo`: play one demonstration episode and write its GIF."""
 
 from __future__ import annotations
 

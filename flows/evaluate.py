@@ -1,10 +1,12 @@
 """`python -m flows.evaluate`: the paper's Table 1 protocol over recorded evaluation episodes.
 
 Records the evaluation episodes if they are missing (seeds 1,000,000 …), plays every (technique, agent speed,
-rollout steps, episode) case as its own Prefect task — skipping cases whose result file exists, so an
-interrupted evaluation resumes — then aggregates every result present into table1.json / table1.md.
-`--first-seed 2000000` with another `--log-dir` and `--results-dir` plays the validation episodes instead, where
-a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`).
+rollout steps, episode) case as its own Prefect task into a named run of the results store
+(`RESULTS_DIR/runs/RUN/`: a manifest and one JSON line per episode) — skipping cases the run already holds, so an
+interrupted evaluation resumes — then aggregates the evaluation runs into table1.json / table1.md. The run
+`evaluation` is Table 1's; `--first-seed 2000000` with another `--log-dir` and `--run` plays the validation
+episodes instead, where a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`); any
+other run on the evaluation episodes is a candidate's.
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ import os
 import shlex
 import sys
 from dataclasses import asdict
-from pathlib import Path
 
 import torch
 from prefect import flow, task, unmapped
@@ -35,10 +36,12 @@ from dynplan.evaluation.protocol import (
     VALIDATION_SEED_START,
     WORLD_MODELS,
     Case,
+    begin_run,
     cases,
     pending,
     run_case,
 )
+from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.models.caution import Caution
 from dynplan.planning.mcts import MCTSConfig
@@ -52,10 +55,18 @@ RESULTS_DIR = "datasets/results"
 TABLE_EVERY = 25
 
 
+def run_role(run: str, first_seed: int) -> str:
+    """A run's role: Table 1's run is the evaluation, other runs on the validation seeds validate, and any other
+    run on the evaluation episodes is a candidate's."""
+    if first_seed >= VALIDATION_SEED_START:
+        return "validation"
+    return "evaluation" if run == EVALUATION_RUN else "candidate"
+
+
 @task(name="evaluate-episode", cache_policy=NO_CACHE)
-def evaluate_case_task(case: dict, log_dir: str, results_dir: str, playouts: int, model_dir: str | None = None,
-                       caution: dict[str, float] | None = None) -> dict:  # fmt: skip
-    return run_case(Case(**case), log_dir, results_dir, playouts, model_dir, caution)
+def evaluate_case_task(case: dict, log_dir: str, results_dir: str, run: str, playouts: int,
+                       model_dir: str | None = None, caution: dict[str, float] | None = None) -> dict:  # fmt: skip
+    return run_case(Case(**case), log_dir, Run(results_dir, run), playouts, model_dir, caution)
 
 
 @flow(name="evaluate-planner", log_prints=True)
@@ -65,25 +76,30 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      results_dir: str = RESULTS_DIR, command: str = DEFAULT_COMMAND,
                      models: list[str] | None = None, model_dir: str | None = None,
                      first_seed: int = EVAL_SEED_START,
-                     caution: dict[str, float] | None = None) -> list[dict]:  # fmt: skip
-    """Play the missing cases and write the aggregated table. Learned techniques use the committed weights, or
+                     caution: dict[str, float] | None = None, run: str = EVALUATION_RUN) -> list[dict]:  # fmt: skip
+    """Play the cases `run` lacks and write the aggregated table. Learned techniques use the committed weights, or
     those under `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution`
     (field → value) overrides it. Episodes are seeds `first_seed` … (the evaluation's by default)."""
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=first_seed)
-    todo = pending(cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
-                         episodes, first_seed, tuple(models or ["default"])), results_dir, log_dir, playouts,
-                   model_dir, caution)  # fmt: skip
-    print(f"{len(todo)} episodes to play")
+    store_run = Run(results_dir, run)
+    all_cases = cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
+                      episodes, first_seed, tuple(models or ["default"]))  # fmt: skip
+    begin_run(store_run, run_role(run, first_seed), all_cases, log_dir, playouts, command, model_dir, caution)
+    todo = pending(all_cases, store_run, log_dir, playouts, model_dir, caution)
+    print(f"{len(todo)} episodes to play into {store_run.dir}")
     futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
-                                     unmapped(playouts), unmapped(model_dir), unmapped(caution))  # fmt: skip
+                                     unmapped(run), unmapped(playouts), unmapped(model_dir),
+                                     unmapped(caution))  # fmt: skip
+    role = store_run.manifest()["role"]
     for done, future in enumerate(progress(as_completed(futures), total=len(futures), description="evaluate"), 1):
         future.result()
-        if done % TABLE_EVERY == 0:  # a long evaluation that is stopped still leaves an up-to-date table
-            write_table(aggregate(load_results(results_dir)), results_dir, command)
-    rows = aggregate(load_results(results_dir))
-    write_table(rows, results_dir, command)
-    print("\n" + render_markdown(rows))
+        if role == "evaluation" and done % TABLE_EVERY == 0:  # a stopped evaluation still leaves an up-to-date table
+            write_table(aggregate(load_results(results_dir)), results_dir)
+    if role == "evaluation":
+        write_table(aggregate(load_results(results_dir)), results_dir)
+    rows = aggregate(store_run.current())
+    print(f"\nrun {run!r} ({role}):\n" + render_markdown(rows))
     return rows
 
 
@@ -102,7 +118,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--episodes", type=int, default=EVAL_EPISODES, help="evaluation episodes (default 100)")
     parser.add_argument("--playouts", type=int, default=100, help="MCTS playouts per decision (default 100)")
     parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
-    parser.add_argument("--results-dir", default=RESULTS_DIR, help="per-episode results and the table")
+    parser.add_argument("--results-dir", default=RESULTS_DIR, help="the results store (runs and Table 1)")
+    parser.add_argument("--run", default=EVALUATION_RUN, help=f"the run to play into (default {EVALUATION_RUN!r}, "
+                        "Table 1's; name another for validation or a candidate)")  # fmt: skip
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
     parser.add_argument("--model-dir", help="learned world models under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
                         "(default: the committed weights)")  # fmt: skip
@@ -127,8 +145,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
         CollectPlan(episodes=args.episodes, seed=args.first_seed)
     except ConfigError as error:
         parser.error(str(error))
-    if args.first_seed != EVAL_SEED_START and Path(args.results_dir).resolve() == Path(RESULTS_DIR).resolve():
-        parser.error(f"--first-seed={args.first_seed} needs its own --results-dir: {RESULTS_DIR} holds the "
+    try:
+        check_run_name(args.run)
+    except StoreError as error:
+        parser.error(f"--run: {error}")
+    if args.first_seed != EVAL_SEED_START and args.run == EVALUATION_RUN:
+        parser.error(f"--first-seed={args.first_seed} needs its own --run: the run {EVALUATION_RUN!r} holds the "
                      f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
     if args.occupancy is not None and not 0.0 <= args.occupancy < 1.0:
         parser.error(f"--occupancy={args.occupancy} is invalid; valid range [0, 1)")
@@ -148,6 +170,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
         caution={name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None} or None,
+        run=args.run,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))

@@ -28,7 +28,7 @@ def prefect_api():
 
 @pytest.fixture(scope="session")
 def recorded_logs(tmp_path_factory) -> Path:
-    """Six 407-frame episode logs (seeds 0–5), written once for the session; tests must not modify them."""
+    """Six 407-frame episode logs (seeds 0–5), written once per test run; tests must not modify them."""
     from dynplan.data.collect import record_episode
 
     out = tmp_path_factory.mktemp("logs")

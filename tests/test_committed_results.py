@@ -1,33 +1,88 @@
-"""The committed Table 1 rows of learned world models are what their committed per-episode results add up to.
+"""The committed results store and weights are what they claim to be.
 
-Learned rows took hours of evaluation and are committed per episode; a table regenerated from files that were
-never committed (a fresh clone lacks them) would claim episodes nobody can reproduce."""
+Learned rows took hours of evaluation: the committed Table 1 must be what the committed runs add up to (a fresh
+clone has nothing else), every run's manifest must describe its rows, the evaluation must have been played with
+the committed weights, and each model card must describe the weights beside it."""
 
+import hashlib
 import json
 from pathlib import Path
 
 import pytest
+import torch
 
-from dynplan.evaluation.table import aggregate, load_results
+from dynplan.evaluation.protocol import world_model_entry
+from dynplan.evaluation.results import results_page
+from dynplan.evaluation.store import ROLES, Run, expected_provenance, runs
+from dynplan.evaluation.table import aggregate, load_results, render_markdown
 
-RESULTS = Path(__file__).resolve().parents[1] / "datasets" / "results"
-FOLDERS = sorted(p.parent for p in RESULTS.glob("**/table1.json") if (p.parent / "episodes").is_dir())
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "datasets" / "results"
+WEIGHTS = ROOT / "dynplan" / "models" / "weights"
+#: Rows per committed run, as imported from the per-episode result files they replace: nothing may go missing.
+COMMITTED_ROWS = {
+    "evaluation": 5800, "validation": 500, "validation_margin1": 300, "validation_paper_annealed": 200,
+    "validation_paper_continued": 200, "validation_paper_margin1": 200, "validation_paper_margin2": 200,
+    "validation_paper_margin3": 200, "candidate_paper_annealed": 1200, "candidate_paper_margin2": 500,
+    "default_margin0": 1931, "default_epoch7": 1970,
+}  # fmt: skip
 
 
-def _learned(rows: list[dict]) -> dict[tuple, tuple]:
-    return {(r["technique"], r["model"], r["agent_speed"], r["rollout_steps"]): (r["episodes"], r["G"], r["T"], r["D"])
-            for r in rows if r.get("model")}  # fmt: skip
+def test_every_committed_run_is_present_whole():
+    counts = {run.name: len(run.current()) for run in runs(RESULTS)}
+    assert {name: counts.get(name) for name in COMMITTED_ROWS} == COMMITTED_ROWS
 
 
-@pytest.mark.parametrize("folder", FOLDERS, ids=lambda p: str(p.relative_to(RESULTS.parent)))
-def test_committed_learned_rows_match_their_episodes(folder):
-    table = _learned(json.loads((folder / "table1.json").read_text()))
-    assert table, f"{folder}/table1.json has no learned rows"
-    assert _learned(aggregate(load_results(folder))) == table
+@pytest.mark.parametrize("name", sorted(COMMITTED_ROWS))
+def test_a_runs_rows_all_match_its_manifest(name):
+    run = Run(RESULTS, name)
+    manifest = run.manifest()
+    assert manifest["role"] in ROLES and manifest["invocations"]
+    rows = run.rows()
+    assert all(
+        {k: r.get(k) for k in expected_provenance(manifest, r)} == expected_provenance(manifest, r) for r in rows
+    )
+    seeds = {r["seed"] for r in rows}
+    assert seeds <= set(manifest["episode_seeds"]) and len(aggregate(rows)) > 0  # aggregation refuses a mixed row
 
 
-README = RESULTS.parents[1] / "README.md"
-TABLE_MARKER = "<!-- table1: copied from datasets/results/table1.md -->"
+def test_table1_is_what_the_evaluation_runs_add_up_to():
+    assert json.loads((RESULTS / "table1.json").read_text()) == aggregate(load_results(RESULTS))
+
+
+def test_the_results_page_is_what_its_command_writes():
+    """docs/results.md is generated (`python -m dynplan.evaluation.results`), never edited by hand."""
+    assert (ROOT / "docs" / "results.md").read_text() == results_page(RESULTS, ROOT / "docs")
+    table = (RESULTS / "table1.md").read_text()
+    assert render_markdown(aggregate(load_results(RESULTS))) in table
+
+
+def test_the_evaluation_was_played_with_the_committed_weights():
+    manifest = Run(RESULTS).manifest()
+    for model, entry in manifest["world_models"].items():
+        committed = world_model_entry(model)
+        assert entry["weights_sha256"] == committed["weights_sha256"], f"{model}: retrain? replay the evaluation"
+        assert entry["caution"] == committed["caution"]
+
+
+@pytest.mark.parametrize("card", sorted(WEIGHTS.glob("*.json")), ids=lambda p: p.stem)
+def test_model_cards_describe_their_weights(card):
+    info = json.loads(card.read_text())
+    weights = WEIGHTS / info["weights"]
+    data = weights.read_bytes()
+    assert info["sha256"] == hashlib.sha256(data).hexdigest() and info["bytes"] == len(data)
+    checkpoint = torch.load(weights, map_location="cpu", weights_only=False)
+    assert checkpoint["kind"] == info["stage"] and checkpoint["config"]["name"] == info["configuration"]
+    assert info["parameters"] == sum(t.numel() for t in checkpoint["model"].values())
+    assert {k: v for k, v in checkpoint["config"].items() if k in info["config"]} == {
+        k: tuple(v) if isinstance(v, list) else v for k, v in info["config"].items()
+    }
+    assert info["held_out"] and info["commands"] and (ROOT / info["documentation"] / "metrics.csv").is_file()
+    assert len(list(WEIGHTS.glob("*.pt"))) == len(list(WEIGHTS.glob("*.json")))
+
+
+README = ROOT / "README.md"
+TABLE_MARKER = "<!-- table1: generated from datasets/results/table1.md -->"
 
 
 def _table_lines(text: str) -> list[str]:
@@ -36,8 +91,7 @@ def _table_lines(text: str) -> list[str]:
 
 
 def test_readme_table1_is_the_committed_table():
-    """The README's Table 1 is a copy of datasets/results/table1.md: it must not drift from the committed results
-    (regenerate with `python -m flows.evaluate`, then paste the table's rows after the marker)."""
+    """The README's Table 1 is datasets/results/table1.md's (`python -m dynplan.evaluation.results` writes both)."""
     readme = README.read_text()
     assert TABLE_MARKER in readme, f"README.md lost its marker {TABLE_MARKER!r}"
     copied = readme.split(TABLE_MARKER, 1)[1].lstrip("\n").split("\n\n", 1)[0]

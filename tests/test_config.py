@@ -1,4 +1,4 @@
-"""RoadConfig: the SPEC's tables as golden values, and validation that names the field and its range."""
+"""RoadConfig: the tables of docs/protocol.md §1 as golden values, and validation that names the field and its range."""
 
 import pytest
 
@@ -36,7 +36,7 @@ def test_lane_rows_at_48():
     assert len(rows) == 42
 
 
-def test_spawn_probabilities_match_spec():
+def test_spawn_probabilities_match_the_protocol():
     golden = {3: 0.0504, 4: 0.0055, 5: 4.7e-4, 6: 3.3e-5, 7: 2.1e-6}
     for length, p in golden.items():
         assert spawn_probability(length, 6) == pytest.approx(p, rel=0.02)

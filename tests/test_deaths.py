@@ -7,7 +7,8 @@ import pytest
 
 from dynplan.analysis.deaths import CAUSES, classify_death, main, replay_death
 from dynplan.data.collect import record_episode
-from dynplan.evaluation.protocol import EVAL_SEED_START, Case, run_case
+from dynplan.evaluation.protocol import EVAL_SEED_START, Case, begin_run, run_case
+from dynplan.evaluation.store import Run
 
 SEDAN = 144
 #: Evaluation seed on which the zero-model agent (it predicts an empty road) dies at agent speed 1.0, k = 1 and 3.
@@ -50,14 +51,16 @@ def test_classify_death_refuses_a_pixel_without_an_obstacle():
 def dying_case(tmp_path_factory):
     logs, results = tmp_path_factory.mktemp("logs"), tmp_path_factory.mktemp("results")
     record_episode(logs, DYING_SEED)
-    for k in (1, 3):
-        assert run_case(Case("zero", 1.0, k, DYING_SEED), logs, results)["outcome"] == "death"
+    run, dying = Run(results), [Case("zero", 1.0, k, DYING_SEED) for k in (1, 3)]
+    begin_run(run, "evaluation", dying, logs, 100, "test")
+    for case in dying:
+        assert run_case(case, logs, run)["outcome"] == "death"
     return logs, results
 
 
 def test_replayed_deaths_are_those_recorded_and_unforeseen_by_an_empty_prediction(dying_case):
     logs, results = dying_case
-    record = json.loads(Case("zero", 1.0, 3, DYING_SEED).result_path(results).read_text())
+    record = next(r for r in Run(results).rows() if r["rollout_steps"] == 3)
     death = replay_death(Case("zero", 1.0, 3, DYING_SEED), str(logs))
     assert death.t + 1 == record["steps"] + 4  # first decision at t = 4; died on the frame after the last decision
     assert death.cause in {"spawned", "lost"}  # an empty prediction foresees and displaces nothing
@@ -85,5 +88,5 @@ def test_deaths_replay_with_the_caution_their_result_records(monkeypatch):
               "outcome": "death", "playouts": 100}  # fmt: skip
     deaths.death_causes([record, {**record, "occupancy": 0.1}, {**record, "occupancy": 0.1, "margin": 1},
                          {**record, "outcome": "goal"}])  # fmt: skip
-    # absent: off (played before the setting existed), not the configuration's current own
+    # absent: off (a record without the field), not the configuration's current own
     assert seen == [{"occupancy": 0, "margin": 0}, {"occupancy": 0.1, "margin": 0}, {"occupancy": 0.1, "margin": 1}]

@@ -13,6 +13,7 @@ from dynplan.config import ConfigError
 from dynplan.data.collect import log_path, record_episode
 from dynplan.evaluation.protocol import EVAL_SEED_START, Case, cases, pending, run_case
 from dynplan.evaluation.replay import replay
+from dynplan.evaluation.store import Run
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.logs import LogError, read_episode_log
 
@@ -37,18 +38,18 @@ def test_cases_cover_the_table():
 
 
 def test_run_case_writes_a_result_and_resumes(tmp_path, eval_logs):
-    case = Case("oracle", 1.0, 3, EVAL_SEED_START)
-    record = run_case(case, eval_logs, tmp_path)
-    path = case.result_path(tmp_path)
+    case, run = Case("oracle", 1.0, 3, EVAL_SEED_START), Run(tmp_path)
+    record = run_case(case, eval_logs, run)
+    path = run.episodes_path
     assert path.is_file() and record["outcome"] in {"goal", "timeout", "death"}
-    assert len(record["decision_ms"]) == record["steps"]
+    assert len(record["decision_ms"]) == record["steps"] and record["code_version"].startswith("dynplan ")
     stamp = path.stat().st_mtime_ns
-    assert run_case(case, eval_logs, tmp_path) == record
-    assert path.stat().st_mtime_ns == stamp
-    assert pending([case, Case("oracle", 1.0, 5, EVAL_SEED_START)], tmp_path, eval_logs) == [
+    assert run_case(case, eval_logs, run) == record
+    assert path.stat().st_mtime_ns == stamp and run.rows() == [record]
+    assert pending([case, Case("oracle", 1.0, 5, EVAL_SEED_START)], run, eval_logs) == [
         Case("oracle", 1.0, 5, EVAL_SEED_START)
     ]
-    random = run_case(Case("random", 0.5, None, EVAL_SEED_START + 1), eval_logs, tmp_path)
+    random = run_case(Case("random", 0.5, None, EVAL_SEED_START + 1), eval_logs, run)
     assert random["rollout_steps"] is None
 
 
@@ -82,14 +83,21 @@ def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path,
             "decision_ms_median"}  # fmt: skip
     table = json.loads((results / "table1.json").read_text())
     assert all(keys <= set(row) for row in table) and all(row["episodes"] == 2 for row in table)
-    assert "Last run: `python -m flows.evaluate`" in (results / "table1.md").read_text()
-    stamps = {p: p.stat().st_mtime_ns for p in results.glob("episodes/*/*/*.json")}
-    assert len(stamps) == 6
+    run = Run(results)
+    manifest = run.manifest()
+    assert manifest["role"] == "evaluation" and manifest["episode_seeds"] == [EVAL_SEED_START, EVAL_SEED_START + 1]
+    assert set(manifest["log_sha256"]) == {str(EVAL_SEED_START), str(EVAL_SEED_START + 1)}
+    assert manifest["invocations"][0]["command"] == "python -m flows.evaluate"
+    data = run.episodes_path.read_bytes()
+    assert data.count(b"\n") == 6
     evaluate_planner(**kwargs)
-    assert {p: p.stat().st_mtime_ns for p in results.glob("episodes/*/*/*.json")} == stamps
+    assert run.episodes_path.read_bytes() == data and len(run.manifest()["invocations"]) == 2
     assert len(load_results(results)) == 6
-    write_table(rows, tmp_path / "again", "cmd")
-    assert (tmp_path / "again" / "table1.md").is_file()
+    write_table(rows, tmp_path / "again")
+    assert (tmp_path / "again" / "table1.md").read_bytes() == (results / "table1.md").read_bytes()
+    # a validation run is a run of its own, and Table 1 does not count it
+    evaluate_planner(**{**kwargs, "rollout_steps": [1], "first_seed": EVAL_SEED_START, "run": "other"})
+    assert Run(results, "other").manifest()["role"] == "candidate" and len(load_results(results)) == 6
 
 
 def test_replay_round_trips_through_the_reader(tmp_path, eval_logs):
@@ -142,14 +150,14 @@ def test_replay_command_line(tmp_path, eval_logs):
 
 
 def test_results_are_reused_only_for_the_same_playouts_and_log(tmp_path, eval_logs):
-    case = Case("oracle", 1.0, 1, EVAL_SEED_START)
-    first = run_case(case, eval_logs, tmp_path, playouts=10)
-    assert run_case(case, eval_logs, tmp_path, playouts=10) == first
-    assert pending([case], tmp_path, eval_logs, playouts=10) == []
-    assert pending([case], tmp_path, eval_logs, playouts=20) == [case]  # the flow replays what changed
-    again = run_case(case, eval_logs, tmp_path, playouts=20)
+    case, run = Case("oracle", 1.0, 1, EVAL_SEED_START), Run(tmp_path)
+    first = run_case(case, eval_logs, run, playouts=10)
+    assert run_case(case, eval_logs, run, playouts=10) == first
+    assert pending([case], run, eval_logs, playouts=10) == []
+    assert pending([case], run, eval_logs, playouts=20) == [case]  # the flow replays what changed
+    again = run_case(case, eval_logs, run, playouts=20)
     assert again["playouts"] == 20 and len(again["log_sha256"]) == 64
-    with pytest.raises(ValueError, match="mix playouts"):
+    with pytest.raises(ValueError, match="mix playouts values"):
         aggregate([first, again])
 
 
@@ -190,21 +198,22 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     monkeypatch.setattr(protocol, "_learned_parts", lambda model, model_dir: (tokenizer, prior))
     all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
-    records = [run_case(c, eval_logs, tmp_path, playouts=5) for c in all_cases]
+    run = Run(tmp_path)
+    records = [run_case(c, eval_logs, run, playouts=5) for c in all_cases]
     assert records[0]["world_model_sha256"] == "missing+missing" or "+" in records[0]["world_model_sha256"]
     assert records[0]["occupancy"] == CAUTION["default"].occupancy > 0  # a result says which caution it played with
     stale = {k: v for k, v in records[0].items() if k != "occupancy"}  # played before the threshold existed
-    all_cases[0].result_path(tmp_path).write_text(json.dumps(stale))
-    assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
-    other = run_case(all_cases[0], eval_logs, tmp_path, playouts=5, caution={"occupancy": 0.3})  # being validated
+    old = Run(tmp_path, "old")
+    old.append(stale)
+    assert pending(all_cases[:1], old, eval_logs, playouts=5) == [all_cases[0]]
+    other = run_case(all_cases[0], eval_logs, run, playouts=5, caution={"occupancy": 0.3})  # being validated
     assert other["occupancy"] == 0.3
-    assert pending(all_cases, tmp_path, eval_logs, playouts=5, caution={"occupancy": 0.3}) == []
-    assert pending(all_cases, tmp_path, eval_logs, playouts=5, caution={"occupancy": 0.0}) == [all_cases[0]]
-    assert pending(all_cases, tmp_path, eval_logs, playouts=5) == [all_cases[0]]
-    widened = run_case(all_cases[0], eval_logs, tmp_path, playouts=5, caution={"occupancy": 0.3, "margin": 2})
+    assert pending(all_cases, run, eval_logs, playouts=5, caution={"occupancy": 0.3}) == []
+    assert pending(all_cases, run, eval_logs, playouts=5, caution={"occupancy": 0.0}) == [all_cases[0]]
+    assert pending(all_cases, run, eval_logs, playouts=5) == []  # each provenance's row is kept
+    widened = run_case(all_cases[0], eval_logs, run, playouts=5, caution={"occupancy": 0.3, "margin": 2})
     assert (widened["occupancy"], widened["margin"]) == (0.3, 2)
-    assert pending(all_cases, tmp_path, eval_logs, playouts=5, caution={"occupancy": 0.3}) == [all_cases[0]]
-    assert all_cases[0].result_path(tmp_path).parent.parent.name == "samples5-default"
+    assert len(run.rows()) == 4
     rows = aggregate(records)
     assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}
     assert "| 2× samples5 [default] (ours) | " in render_markdown(rows)
@@ -247,7 +256,8 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
         (["--occupancy", "1.5"], "--occupancy=1.5 is invalid; valid range [0, 1)"),
         (["--margin", "5"], "--margin=5 is invalid; valid range [0, 4]"),
         (["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"], "--occupancy needs patch-local codes"),
-        (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --results-dir"),
+        (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --run"),
+        (["--run", "../x"], "--run: run name '../x' is invalid"),
         (["--first-seed", "-1"], "seed"),
     ],
 )

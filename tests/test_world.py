@@ -1,4 +1,4 @@
-"""The road world's dynamics: invariants over seeds, levels and grid sizes, and golden statistics (SPEC §1)."""
+"""The road world's dynamics: invariants over seeds, levels and grid sizes, golden statistics (docs/protocol.md §1)."""
 
 import math
 

@@ -148,7 +148,7 @@ def test_each_configuration_has_its_caution_and_overrides_are_checked():
     assert CAUTION["paper"] == Caution()  # the paper's method: the argmax alone
     assert caution_for("default", {"margin": 2}).occupancy == CAUTION["default"].occupancy
     assert caution_for("default", {"margin": 2}).recorded()["margin"] == 2
-    assert Caution().recorded() == {}  # a result played without caution records nothing (as before it existed)
+    assert Caution().recorded() == {}  # a result played without caution records nothing (no caution fields: none used)
     with pytest.raises(ValueError, match=r"margin=7 is invalid .* valid range \[0, 4\]"):
         caution_for("default", {"margin": 7})
 

@@ -132,6 +132,7 @@ def summarise(deaths: list[Death], played: Counter) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
+    from dynplan.evaluation.store import Run
     from dynplan.evaluation.table import load_results
 
     parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.deaths", description=__doc__,
@@ -140,12 +141,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--model", default="default", choices=WORLD_MODELS, help="world model of a learned technique")
     parser.add_argument("--agent-speed", type=float, default=1.0)
     parser.add_argument("--rollout-steps", type=int, nargs="+", default=list(ROLLOUT_STEPS))
-    parser.add_argument("--results-dir", default="datasets/results")
+    parser.add_argument("--results-dir", default="datasets/results", help="the results store")
+    parser.add_argument("--run", help="the run whose deaths to classify (default: Table 1's evaluation runs)")
     parser.add_argument("--log-dir", default="datasets/eval_logs")
     parser.add_argument("--out", help="write the per-death causes and the summary here (JSON)")
     args = parser.parse_args(argv)
     model = args.model if args.technique in LEARNED else None
-    records = [r for r in load_results(args.results_dir)
+    results = Run(args.results_dir, args.run).current() if args.run else load_results(args.results_dir)
+    records = [r for r in results
                if r["technique"] == args.technique and r.get("model") == model
                and r["agent_speed"] == args.agent_speed and r["rollout_steps"] in args.rollout_steps]  # fmt: skip
     if not records:

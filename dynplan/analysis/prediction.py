@@ -12,6 +12,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
+import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -114,6 +117,19 @@ def world_model(model: str, samples: int = 0, futures: int = 0, prior: str | Non
                              **caution_for(model, caution).model_dump())  # fmt: skip
 
 
+def write_curves(path: str | os.PathLike, curves: dict, command: str) -> None:
+    """Add `curves` (name → errors by horizon) to the JSON file at `path`, each with the command that measured it."""
+    from dynplan.files import write_bytes_atomic
+
+    try:
+        stored = json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        stored = {"curves": {}}
+    for name, curve in curves.items():
+        stored["curves"][name] = {**curve, "command": command}
+    write_bytes_atomic(path, (json.dumps(stored, indent=1) + "\n").encode())
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
     parser.add_argument("--model", default="default", choices=["default", "paper"])
@@ -131,6 +147,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--plot", help="write the error-against-horizon figure here")
     parser.add_argument("--figure", help="write a Figure-1-style image here")
+    parser.add_argument("--out", help="add the curves to this JSON file (curves of the same name are replaced)")
     args = parser.parse_args(argv)
     variants = [(samples, 0) for samples in args.samples] + [(0, futures) for futures in args.futures]
     curves = {}
@@ -144,6 +161,9 @@ def main(argv: list[str] | None = None) -> None:
             name = f"{args.model}, {variant}" + "".join(f", {key} {value:g}" for key, value in settings if value)
             curves[name] = errors_by_horizon(model, args.episodes)
             print(json.dumps({name: curves[name]}))
+    if args.out:
+        write_curves(args.out, curves, shlex.join(["python", "-m", "dynplan.analysis.prediction",
+                                                   *(sys.argv[1:] if argv is None else argv)]))  # fmt: skip
     if args.plot:
         plot_errors(curves, args.plot)
     if args.figure:

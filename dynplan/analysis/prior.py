@@ -1,7 +1,8 @@
 """How the goal prior's weights change the oracle agent: `python -m dynplan.analysis.prior [--episodes 100]`.
 
-Plays the 1× oracle at k = 3 on the evaluation episodes with SPEC's weights (4, 3, 2, 2, 1, 1, 1, 1) and with
-the flatter ones in the authors' stored code (2.5, 2.5, 2, 2, 1, 1, 1, 1), same planner seeds as Table 1.
+Plays the 1× oracle at k = 3 on the evaluation episodes with the paper's weights (docs/protocol.md §3:
+4, 3, 2, 2, 1, 1, 1, 1) and with the flatter ones in the authors' stored code (2.5, 2.5, 2, 2, 1, 1, 1, 1),
+same planner seeds as Table 1.
 """
 
 from __future__ import annotations

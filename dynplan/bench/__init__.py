@@ -20,7 +20,7 @@ from dynplan.bench.world import bench_world
 
 Results = dict[str, dict[str, float]]
 
-#: name → benchmark; later issues register theirs here.
+#: name → benchmark: what `python -m dynplan.bench NAME` runs.
 BENCHMARKS: dict[str, Callable[..., Results]] = {
     "world": bench_world,
     "data": bench_data,

@@ -11,7 +11,7 @@ from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
 
-#: The authors' code measured on this kind of machine (SPEC §4), seconds → ms; not re-run here.
+#: The authors' code (ported to Python 3, 50 episodes per case; docs/protocol.md §4), seconds → ms; not re-run here.
 REFERENCE_MS = {3: 120.0, 10: 402.0}  # medians
 TARGET_MS_K10 = 5.0
 

@@ -1,5 +1,5 @@
 """`pipeline`: the collect-train-eval `quick` preset's wall time per stage, and the evaluation's speed-up on a
-Dask cluster of two single-thread workers against one (each a process on this machine, through prefect-dask).
+Dask cluster of two single-thread workers against one (each a local process, through prefect-dask).
 
 The evaluation case is compute-bound on purpose — 1× agent, k = 10, 1,000 playouts per decision, oracle model —
 so that the ratio measures the cluster rather than Prefect's per-task overhead.

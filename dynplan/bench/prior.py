@@ -1,8 +1,8 @@
-"""`prior`: training throughput (windows/s) of each PixelCNN prior preset on this machine's cores.
+"""`prior`: training throughput (windows/s) of each PixelCNN prior preset on the local CPU cores.
 
 Random code windows at each preset's batch size. The baseline, timed in the same process, is the same model
-with its cross-entropy taken over the channel axis of (B, K, h, w) logits — the plain formulation, before
-`ConditionalPixelCNN.forward` moved the K-way log-softmax onto contiguous rows.
+with its cross-entropy taken over the channel axis of (B, K, h, w) logits — the plain formulation, which
+`ConditionalPixelCNN.forward` speeds up by taking the K-way log-softmax over contiguous rows.
 """
 
 from __future__ import annotations

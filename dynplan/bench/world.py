@@ -7,7 +7,7 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.env.stepwise import simulate_world
 
-#: Issue #2's target for the vectorised generator.
+#: The vectorised generator's target speed, frames per second.
 TARGET_FRAMES_PER_S = 50_000
 
 

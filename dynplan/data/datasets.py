@@ -16,7 +16,7 @@ import zarr
 from torch.utils.data import Dataset
 
 Split = Literal["train", "validation", "all"]
-#: Frames of context a window gives before its target (SPEC §2: the PixelCNN conditions on the last 4).
+#: Frames of context a window gives before its target (docs/protocol.md §2: the PixelCNN conditions on the last 4).
 CONTEXT = 4
 
 

@@ -1,4 +1,4 @@
-"""The road world (SPEC §1): config, vectorised episode generation, agent rules and the Gymnasium env."""
+"""The road world (docs/protocol.md §1): config, vectorised episode generation, agent rules and the Gymnasium env."""
 
 from dynplan.env.agent import (
     ACTION_ANGLES_DEG,

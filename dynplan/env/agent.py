@@ -1,4 +1,4 @@
-"""The agent's rules (SPEC §1): its eight actions, how it moves, and how a frame judges where it lands.
+"""The agent's rules (docs/protocol.md §1): its eight actions, how it moves, and how a frame judges where it lands.
 
 Pure functions over arrays, shared by the Gymnasium environment, the planner's rollouts and evaluation, so
 that every part of dynplan agrees on what counts as death, goal and timeout.

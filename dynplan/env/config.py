@@ -1,4 +1,4 @@
-"""Configuration of the road world and its agent (SPEC §1), validated in one place.
+"""Configuration of the road world and its agent (docs/protocol.md §1), validated in one place.
 
 `RoadConfig` is the single source of truth for world geometry, traffic level and agent speed; see
 `dynplan.config.Config` for how values are validated and serialised.

@@ -1,4 +1,4 @@
-"""The road world (SPEC §1): lanes of traffic and a wall-bouncing goal, generated a whole episode at a time.
+"""The road world (docs/protocol.md §1): lanes of traffic and a wall-bouncing goal, generated a whole episode at a time.
 
 The world does not depend on the agent, so an episode's frames are a pure function of (config, seed, length)
 and are produced up front with numpy: every obstacle is a row of arrays (spawn step, lane, speed), its position

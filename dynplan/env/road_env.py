@@ -63,7 +63,8 @@ class RoadEnv(gym.Env[dict, np.int64]):
     `outcome` ("running", "goal", "death" or "timeout").
 
     ## Version History
-    * v0: first release, after SPEC §1 (goal reflects off the walls, angular prior wraps; see SPEC quirks).
+    * v0: first release, after docs/protocol.md §1 (goal reflects off the walls, angular prior wraps;
+      see docs/protocol.md §5).
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 10}

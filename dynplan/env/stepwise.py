@@ -1,4 +1,4 @@
-"""The road world simulated one step at a time, the way SPEC §1 tells it.
+"""The road world simulated one step at a time, the way docs/protocol.md §1 tells it.
 
 A deliberately plain re-statement of the rules: a list of live obstacles that move, leave and enter each step,
 and a goal whose velocity component flips when it would leave the box. It consumes the same random draws as

@@ -1,14 +1,13 @@
-"""The evaluation protocol (SPEC §4): every technique plays the same recorded episodes.
+"""The evaluation protocol (docs/protocol.md §4): every technique plays the same recorded episodes.
 
-One case = (technique, agent speed, rollout steps, episode seed). Each case's result is a small JSON file, so
-an evaluation resumes where it stopped and can be spread over sessions or a Dask cluster. Techniques build
-their planner and forward model from the recorded world; the learned models register here when they exist.
+One case = (technique, agent speed, rollout steps, episode seed). Each case's result is a row of its run in the
+results store (`dynplan.evaluation.store`), appended as it finishes, so an evaluation resumes where it stopped and
+can be spread over a Dask cluster. Techniques build their planner and forward model from the recorded world.
 """
 
 from __future__ import annotations
 
 import functools
-import json
 import os
 import time
 import zlib
@@ -20,9 +19,8 @@ from dynplan.data.collect import log_path
 from dynplan.data.store import sha256_file
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
-from dynplan.files import write_bytes_atomic
+from dynplan.evaluation.store import Run, code_version
 from dynplan.logs.reader import LogError, read_episode_log
-from dynplan.models.caution import Caution
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
@@ -126,9 +124,6 @@ class Case:
         technique = self.technique if self.model is None else f"{self.technique}-{self.model}"
         return f"{technique}/speed{self.agent_speed:g}_k{k}"
 
-    def result_path(self, results_dir: str | os.PathLike) -> Path:
-        return Path(results_dir) / "episodes" / self.group / f"seed{self.seed}.json"
-
     def planner_seed(self) -> int:
         """A seed for the planner's own randomness, fixed per case."""
         return zlib.crc32(f"{self.group}/{self.seed}".encode())
@@ -174,15 +169,14 @@ def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir
     return provenance
 
 
-def _existing(case: Case, results_dir: str | os.PathLike, provenance: dict) -> dict | None:
-    """The stored result of `case`, if it was played under the same provenance (else None: play it again)."""
-    path = case.result_path(results_dir)
-    try:
-        record = json.loads(path.read_text())
-    except (FileNotFoundError, json.JSONDecodeError):
-        return None  # missing, or damaged: recompute
-    keys = provenance.keys() | set(Caution.model_fields)  # a result played with a caution is not one played without
-    return record if all(record.get(k) == provenance.get(k) for k in keys) else None
+def world_model_entry(model: str, model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> dict:
+    """What a run's manifest records of world-model configuration `model`: its weights and their SHA-256, and the
+    caution it plays with (only the settings that are on)."""
+    from dynplan.models.caution import caution_for
+
+    return {"weights_sha256": _world_model_identity(model, model_dir),
+            "weights": [str(p) for p in world_model_paths(model, model_dir)],
+            "caution": caution_for(model, caution).recorded()}  # fmt: skip
 
 
 def case_agent(
@@ -206,18 +200,17 @@ def case_agent(
     return MCTSPlanner(config, case.agent_speed, max_steps, seed=case.planner_seed()), model
 
 
-def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathLike, playouts: int = 100,
-             model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
-    """Play one case against its recorded episode and write its result JSON — or return the existing one, if it
-    was played with the same playouts, against the same log and (learned techniques) the same weights and
+def run_case(case: Case, log_dir: str | os.PathLike, run: Run, playouts: int = 100, model_dir: str | None = None,
+             caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
+    """Play one case against its recorded episode and append its row to `run` — or return the run's row of it, if
+    one was played with the same playouts, against the same log and (learned techniques) the same weights and
     caution. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`); `caution`:
     what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05})."""
     provenance = _provenance(case, log_dir, playouts, model_dir, caution)
-    existing = _existing(case, results_dir, provenance)
+    existing = run.find(asdict(case), provenance)
     if existing is not None:
         return existing
     source = log_path(log_dir, case.seed)
-    path = case.result_path(results_dir)
     start = time.perf_counter()
     log = read_episode_log(source)
     if log.seed != case.seed:
@@ -232,13 +225,24 @@ def run_case(case: Case, log_dir: str | os.PathLike, results_dir: str | os.PathL
         **provenance,
         "decision_ms": [round(ms, 4) for ms in result.decision_ms],
         "wall_s": round(time.perf_counter() - start, 4),
+        "code_version": code_version(),
     }
-    write_bytes_atomic(path, json.dumps(record).encode())
+    run.append(record)
     return record
 
 
-def pending(all_cases: list[Case], results_dir: str | os.PathLike, log_dir: str | os.PathLike, playouts: int = 100,
+def pending(all_cases: list[Case], run: Run, log_dir: str | os.PathLike, playouts: int = 100,
             model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> list[Case]:  # fmt: skip
-    """The cases without a reusable result (what a resumed evaluation still has to play)."""
+    """The cases without a row of the same provenance in `run` (what a resumed evaluation still has to play)."""
     return [c for c in all_cases
-            if _existing(c, results_dir, _provenance(c, log_dir, playouts, model_dir, caution)) is None]  # fmt: skip
+            if run.find(asdict(c), _provenance(c, log_dir, playouts, model_dir, caution)) is None]  # fmt: skip
+
+
+def begin_run(run: Run, role: str, all_cases: list[Case], log_dir: str | os.PathLike, playouts: int, command: str,
+              model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
+    """Write (or extend) `run`'s manifest with what these cases play with: seeds, logs, weights, caution."""
+    seeds = sorted({c.seed for c in all_cases})
+    logs = {s: sha256_file(p) if (p := log_path(log_dir, s)).exists() else None for s in seeds}
+    models = {c.model for c in all_cases if c.model is not None}
+    return run.begin(role, playouts, seeds, logs, {m: world_model_entry(m, model_dir, caution) for m in sorted(models)},
+                     command)  # fmt: skip

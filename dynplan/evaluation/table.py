@@ -11,14 +11,33 @@ from pathlib import Path
 import numpy as np
 
 from dynplan.evaluation.paper import PAPER_RANDOM_GOALS, PAPER_TABLE1
+from dynplan.evaluation.store import evaluation_rows
 from dynplan.files import write_bytes_atomic
+from dynplan.models.caution import Caution
 
 TECHNIQUE_ORDER = ("oracle", "mid", "samples5", "samples10", "zero", "random")
 
 
+#: What every episode of one table row must share: a row never mixes results played differently.
+SHARED = ("playouts", "world_model_sha256", *Caution.model_fields)
+
+
 def load_results(results_dir: str | os.PathLike) -> list[dict]:
-    """Every per-episode result under `results_dir`/episodes."""
-    return [json.loads(p.read_text()) for p in sorted(Path(results_dir).glob("episodes/*/*/seed*.json"))]
+    """The rows Table 1 counts in the store at `results_dir`: the current rows of its evaluation runs."""
+    return evaluation_rows(results_dir)
+
+
+def _check_provenance(label: str, episodes: list[dict]) -> None:
+    """Refuse a row whose episodes differ in what they were played with, or that holds an episode twice."""
+    for field in SHARED:
+        values = {json.dumps(e.get(field)) for e in episodes}
+        if len(values) > 1:
+            raise ValueError(f"the results of {label} mix {field} values {sorted(values)}: a row of Table 1 counts "
+                             f"episodes played the same way only")  # fmt: skip
+    seeds = [e.get("seed") for e in episodes]
+    twice = sorted({s for s in seeds if s is not None and seeds.count(s) > 1})
+    if twice:
+        raise ValueError(f"the results of {label} hold seed(s) {twice} more than once")
 
 
 def _sort_key(row: dict) -> tuple:
@@ -34,9 +53,8 @@ def aggregate(results: list[dict]) -> list[dict]:
         groups[(r["technique"], r.get("model"), r["agent_speed"], r["rollout_steps"])].append(r)
     rows = []
     for (technique, model, speed, k), episodes in groups.items():
+        _check_provenance(f"{technique}" + (f" [{model}]" if model else "") + f" at speed {speed}, k={k}", episodes)
         playouts = {e.get("playouts") for e in episodes}
-        if len(playouts) > 1:
-            raise ValueError(f"results of {technique} at speed {speed}, k={k} mix playouts {sorted(playouts)}")
         outcomes = [e["outcome"] for e in episodes]
         survived = np.array([e["steps"] for e in episodes if e["outcome"] != "death"], dtype=np.float64)
         times = np.concatenate([np.asarray(e["decision_ms"], dtype=np.float64) for e in episodes])
@@ -108,17 +126,19 @@ def render_markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_table(rows: list[dict], results_dir: str | os.PathLike, command: str) -> tuple[Path, Path]:
-    """Write table1.json and table1.md (with the command that regenerates them) into `results_dir`."""
+def write_table(rows: list[dict], results_dir: str | os.PathLike) -> tuple[Path, Path]:
+    """Write table1.json and table1.md into `results_dir` (a pure function of `rows`: the same rows write the same
+    bytes)."""
     results_dir = Path(results_dir)
     json_path = write_bytes_atomic(results_dir / "table1.json", (json.dumps(rows, indent=1) + "\n").encode())
     text = (
         "# Table 1: MCTS agents over the same recorded episodes\n\n"
-        "Rows accumulate across runs of `python -m flows.evaluate`; a row regenerates with "
-        "`python -m flows.evaluate --techniques TECHNIQUE [--models MODEL]` (100 episodes, 100 playouts, both speeds, "
-        f"k = 1, 3, 5, 10 by default). Last run: `{command}`. Cells: goals / timeouts / deaths, and steps (mean ± std "
-        "over the episodes not died). Speeds: 2× = 1.0 px/step (T = 203), 1× = 0.5 px/step (T = 407).\n\n"
-        + render_markdown(rows)
+        "Built from the evaluation runs of the results store (`runs/*/manifest.json` with role `evaluation`; "
+        "each manifest lists the commands that played it) by `python -m flows.evaluate` or "
+        "`python -m dynplan.evaluation.results`. A row plays with `python -m flows.evaluate --techniques TECHNIQUE "
+        "[--models MODEL]` (100 episodes, 100 playouts, both speeds, k = 1, 3, 5, 10 by default). Cells: goals / "
+        "timeouts / deaths, and steps (mean ± std over the episodes not died). Speeds: 2× = 1.0 px/step (T = 203), "
+        "1× = 0.5 px/step (T = 407).\n\n" + render_markdown(rows)
     )
     md_path = write_bytes_atomic(results_dir / "table1.md", text.encode())
     return json_path, md_path

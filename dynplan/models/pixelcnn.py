@@ -1,4 +1,4 @@
-"""The conditional gated PixelCNN (SPEC §2, stage 2): p(Z_t[i, j] | Z_t[< (i, j)], Z_{t−1 … t−4}).
+"""The conditional gated PixelCNN (docs/protocol.md §2, stage 2): p(Z_t[i, j] | Z_t[< (i, j)], Z_{t−1 … t−4}).
 
 A gated PixelCNN (van den Oord et al. 2016) over a code grid: a vertical stack that sees the rows above and a
 horizontal stack that sees the codes to the left in the current row, fed from the vertical one; the first

@@ -1,4 +1,4 @@
-"""The VQ-VAE tokenizer (SPEC §2, stage 1): a 48 × 48 frame ↔ an h × w grid of discrete codes.
+"""The VQ-VAE tokenizer (docs/protocol.md §2, stage 1): a 48 × 48 frame ↔ an h × w grid of discrete codes.
 
 Encoder: 4 × 4 convolutions (stride 2 halves the grid, stride 1 keeps it), optional residual blocks, a 1 × 1
 projection to n_codebooks × latent_dim channels; vector quantization; a mirrored decoder of transposed
@@ -101,7 +101,7 @@ class VQVAEConfig(Config):
 
 
 PRESETS: dict[str, VQVAEConfig] = {
-    # The paper's model (SPEC §2), as published: 6 × 6 codes from a 512-entry codebook, DMoL likelihood.
+    # The paper's model (docs/protocol.md §2), as published: 6 × 6 codes from a 512-entry codebook, DMoL likelihood.
     "paper": VQVAEConfig(name="paper"),
     # Ours: a 12 × 12 grid of patch-local codes, one per 4 × 4 patch, from 4096 entries, a categorical likelihood
     # over the world's 7 values. The codebook is content-fitted: encoder and decoder are trained as an autoencoder
@@ -215,7 +215,7 @@ class VQVAE(nn.Module):
         nll = self.pixel.nll(params, frames)
         c = self.config
         if c.obstacle_weight != 1.0 or c.goal_weight != 1.0:
-            weight = torch.where(frames != FREE, c.obstacle_weight, 1.0)  # goal pixels included, as before
+            weight = torch.where(frames != FREE, c.obstacle_weight, 1.0)  # goal pixels too (not FREE)
             nll = nll * weight * torch.where(frames == GOAL_VALUE, c.goal_weight, 1.0)
         return nll.mean()
 

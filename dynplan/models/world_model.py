@@ -1,4 +1,4 @@
-"""The learned forward model: VQ-VAE + conditional PixelCNN behind the planner's seam (SPEC §2).
+"""The learned forward model: VQ-VAE + conditional PixelCNN behind the planner's seam (docs/protocol.md §2).
 
 Given the last four observed frames it encodes them, chains the prior k steps ahead (each predicted grid joins
 the context), and decodes the k grids. Variants of the paper's Table 1:

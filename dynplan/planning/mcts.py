@@ -1,4 +1,4 @@
-"""PUCT Monte-Carlo tree search over a predicted future (SPEC §3), compiled with numba.
+"""PUCT Monte-Carlo tree search over a predicted future (docs/protocol.md §3), compiled with numba.
 
 The world does not depend on the agent, so a decision's whole future is one array of predicted frames
 (k, H, W); a tree node is only (position, depth), and stepping a node is an addition plus one pixel lookup.
@@ -39,7 +39,7 @@ PAPER_PRIOR = (4.0, 3.0, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0)
 
 
 class MCTSConfig(Config):
-    """PUCT search settings; defaults are the paper's (SPEC §3) except the horizon, which the table varies."""
+    """PUCT search settings; defaults are the paper's (docs/protocol.md §3) except the horizon, which Table 1 varies."""
 
     rollout_steps: int = Field(3, ge=1, le=64, description="horizon k: predicted frames the search consults")
     playouts: int = Field(100, ge=1, le=1_000_000, description="playouts per decision")

@@ -1,7 +1,7 @@
 """The training loop every world-model stage shares: epochs, checkpoints, resumption, metrics history.
 
 An "epoch" is `steps_per_epoch` optimisation steps on batches drawn at random (the stores hold millions of
-items; a checkpoint every few minutes is what makes training resumable across sessions). A stage supplies
+items; a checkpoint every few minutes is what makes an interrupted run resumable). A stage supplies
 how to take one step, what to report at the end of an epoch, how to evaluate and what to draw; the loop owns
 `checkpoint.pt` (latest: model, optimiser, RNG, history), `metrics.csv`, and the final `<kind>.pt`.
 """

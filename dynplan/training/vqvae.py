@@ -1,7 +1,7 @@
 """Train a VQ-VAE on the frames store: resumable, a checkpoint and a metrics row every epoch.
 
 An "epoch" here is `steps_per_epoch` batches of frames drawn at random from the training split (the store may
-hold millions of frames; a checkpoint every few minutes is what makes training resumable across sessions).
+hold millions of frames; a checkpoint every few minutes is what makes an interrupted run resumable).
 After each epoch the model reconstructs a fixed set of validation frames and the row of `metrics.csv` records
 the losses, codebook use and perplexity, and the reconstruction errors that matter to the planner.
 """

@@ -1,0 +1,292 @@
+"""The results store: one folder per evaluation run, its provenance in a manifest and its episodes as JSON Lines.
+
+    <root>/runs/<run>/manifest.json   what the run plays with: role, playouts, episode seeds, log checksums, each
+                                      world model's weights (SHA-256) and caution, every command that ran it
+    <root>/runs/<run>/episodes.jsonl  one JSON object per played episode, appended as each finishes
+
+JSON Lines rather than Parquet: a row is appended, whole, the moment its episode finishes (a Parquet file cannot be
+appended to), so an interrupted run loses at most the episode being written; and a run reads with nothing but a
+JSON parser (`pandas.read_json(path, lines=True)`, duckdb's `read_json_auto`). Appends take an exclusive lock on
+`episodes.lock` and write one line with one `write`; a torn last line (a writer killed mid-line) is reported and
+cut off by the next append, and its episode is played again. A row counts for its run only while its provenance
+equals the manifest's; rows played under an earlier manifest stay in the file, stale, and are not counted.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import os
+import re
+import subprocess
+import threading
+import warnings
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
+from datetime import datetime, timezone
+from pathlib import Path
+
+import dynplan
+from dynplan.files import write_bytes_atomic
+from dynplan.models.caution import Caution
+
+FORMAT = "dynplan-run/1"
+#: evaluation: counts in Table 1; validation: the validation episodes, where settings are chosen; candidate: the
+#: evaluation episodes with weights or settings not committed; superseded: the evaluation of weights or settings
+#: that are no longer the committed ones.
+ROLES = ("evaluation", "validation", "candidate", "superseded")
+#: Table 1's run.
+EVALUATION_RUN = "evaluation"
+#: What identifies an episode within a run.
+CASE_KEYS = ("technique", "model", "agent_speed", "rollout_steps", "seed")
+#: What a result depends on besides its case (a caution setting is recorded only while it is on).
+PROVENANCE_KEYS = ("playouts", "log_sha256", "world_model_sha256", *Caution.model_fields)
+_RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+
+
+class StoreError(ValueError):
+    """A run's files are unreadable or inconsistent; the message names the file and what is wrong."""
+
+
+class TornRowWarning(UserWarning):
+    """A run's last line was cut off mid-write (its writer was killed); that episode is played again."""
+
+
+def code_version() -> str:
+    """The package version and, in a git checkout, the commit (with `-dirty` when tracked files changed)."""
+    root = Path(dynplan.__file__).resolve().parents[1]
+    try:
+        commit = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=12"],
+                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()  # fmt: skip
+    except (OSError, subprocess.SubprocessError):
+        commit = ""
+    return f"dynplan {dynplan.__version__}" + (f" ({commit})" if commit else "")
+
+
+def case_key(row: Mapping) -> tuple:
+    return tuple(row.get(k) for k in CASE_KEYS)
+
+
+def provenance_of(row: Mapping) -> dict:
+    """The provenance fields a row records (a caution setting that is off is absent)."""
+    return {k: row.get(k) for k in PROVENANCE_KEYS}
+
+
+def check_run_name(name: str) -> str:
+    if not isinstance(name, str) or not _RUN_NAME.fullmatch(name):
+        raise StoreError(f"run name {name!r} is invalid: letters, digits, '_', '.', '-' (up to 100, not starting "
+                         f"with a punctuation mark)")  # fmt: skip
+    return name
+
+
+class Run:
+    """One named run of a results store rooted at `root` (e.g. `datasets/results`)."""
+
+    def __init__(self, root: str | os.PathLike, name: str = EVALUATION_RUN) -> None:
+        self.root = Path(root)
+        self.name = check_run_name(name)
+        self.dir = self.root / "runs" / name
+        self.manifest_path = self.dir / "manifest.json"
+        self.episodes_path = self.dir / "episodes.jsonl"
+        self._lock_path = self.dir / "episodes.lock"
+
+    def __repr__(self) -> str:
+        return f"Run({str(self.root)!r}, {self.name!r})"
+
+    def exists(self) -> bool:
+        return self.manifest_path.is_file()
+
+    # -- manifest ---------------------------------------------------------------------------------------------
+    def manifest(self) -> dict:
+        """The run's manifest (StoreError when it is missing or damaged)."""
+        try:
+            manifest = json.loads(self.manifest_path.read_text())
+        except FileNotFoundError:
+            raise StoreError(f"{self.manifest_path}: no such manifest (run {self.name!r} never started)") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise StoreError(f"{self.manifest_path}: not a JSON manifest ({error})") from None
+        found = manifest.get("format") if isinstance(manifest, dict) else None
+        if found != FORMAT:
+            raise StoreError(f"{self.manifest_path}: not a {FORMAT} manifest (format {found!r})")
+        return manifest
+
+    def write_manifest(self, manifest: Mapping) -> None:
+        if manifest.get("role") not in ROLES:
+            raise StoreError(f"run {self.name!r}: role {manifest.get('role')!r} is invalid; one of {ROLES}")
+        write_bytes_atomic(self.manifest_path, (json.dumps(manifest, indent=1) + "\n").encode())
+
+    def begin(self, role: str, playouts: int, seeds: Iterable[int], log_sha256: Mapping[int, str | None],
+              world_models: Mapping[str, Mapping], command: str) -> dict:  # fmt: skip
+        """Create the run, or extend its manifest with what this invocation plays: more seeds and logs, a world
+        model, or new weights / caution / playouts for one (whose earlier rows then go stale). The role of an
+        existing run does not change. Returns the manifest written."""
+        if role not in ROLES:
+            raise StoreError(f"run {self.name!r}: role {role!r} is invalid; one of {ROLES}")
+        if self.exists():
+            manifest = self.manifest()
+            if manifest["role"] != role:
+                raise StoreError(f"{self.manifest_path}: run {self.name!r} has role {manifest['role']}; this "
+                                 f"invocation plays a {role} run: name another run with --run")  # fmt: skip
+        else:
+            manifest = {"format": FORMAT, "name": self.name, "role": role, "playouts": playouts, "episode_seeds": [],
+                        "log_sha256": {}, "world_models": {}, "invocations": []}  # fmt: skip
+        manifest["playouts"] = playouts
+        manifest["episode_seeds"] = sorted(set(manifest["episode_seeds"]) | set(seeds))
+        manifest["log_sha256"] = {**manifest["log_sha256"], **{str(s): h for s, h in log_sha256.items()}}
+        manifest["world_models"] = {**manifest["world_models"], **{m: dict(v) for m, v in world_models.items()}}
+        started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+        manifest["invocations"].append({"command": command, "code_version": code_version(), "started": started})
+        self.write_manifest(manifest)
+        return manifest
+
+    # -- rows ---------------------------------------------------------------------------------------------------
+    @contextmanager
+    def _locked(self) -> Iterator[None]:
+        """Exclusive against other processes (a POSIX lock, which NFS honours) and this process's threads."""
+        self.dir.mkdir(parents=True, exist_ok=True)
+        with _THREADS, open(self._lock_path, "a") as lock:
+            fcntl.lockf(lock, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.lockf(lock, fcntl.LOCK_UN)
+
+    def rows(self) -> list[dict]:
+        """Every row of the run's file, in the order written (stale ones included). A torn last line is reported
+        (TornRowWarning) and left out; a damaged line before the last is a StoreError naming it."""
+        try:
+            data = self.episodes_path.read_bytes()
+        except FileNotFoundError:
+            return []
+        return _parse(data, self.episodes_path)
+
+    def append(self, row: Mapping) -> bool:
+        """Append one episode's row, unless the run already holds that case with the same provenance (then return
+        False): concurrent writers never duplicate a row. A torn last line is cut off first."""
+        line = (json.dumps(dict(row), separators=(", ", ": ")) + "\n").encode()
+        identity = _identity(row)
+        with self._locked(), open(self.episodes_path, "a+b") as f:
+            index = _index(f, self.episodes_path, truncate=True)
+            if identity in index:
+                return False
+            f.write(line)  # "a" mode: at the end, whatever the position
+            f.flush()
+            os.fsync(f.fileno())
+            index[identity] = json.loads(line)
+            offset, lines, _ = _INDEX[self.episodes_path.resolve()]
+            _INDEX[self.episodes_path.resolve()] = (offset + len(line), lines + 1, index)
+        return True
+
+    def find(self, case: Mapping, provenance: Mapping) -> dict | None:
+        """The row of `case` played with `provenance`, if the run holds one."""
+        try:
+            with _THREADS, open(self.episodes_path, "rb") as f:
+                return _index(f, self.episodes_path).get(_identity({**case, **provenance}))
+        except FileNotFoundError:
+            return None
+
+    def expected(self, row: Mapping, manifest: Mapping | None = None) -> dict:
+        """The provenance the manifest asks of `row`'s case."""
+        manifest = self.manifest() if manifest is None else manifest
+        return expected_provenance(manifest, row)
+
+    def current(self, manifest: Mapping | None = None) -> list[dict]:
+        """The rows that count: for each case, the last row whose provenance equals the manifest's."""
+        manifest = self.manifest() if manifest is None else manifest
+        seeds = set(manifest["episode_seeds"])
+        out: dict[tuple, dict] = {}
+        for row in self.rows():
+            if row.get("seed") in seeds and provenance_of(row) == expected_provenance(manifest, row):
+                out[case_key(row)] = row
+        return list(out.values())
+
+
+def expected_provenance(manifest: Mapping, case: Mapping) -> dict:
+    """The provenance a manifest asks of one case (technique, model, speed, k, seed)."""
+    out = {k: None for k in PROVENANCE_KEYS}
+    out["playouts"] = manifest["playouts"]
+    out["log_sha256"] = manifest["log_sha256"].get(str(case["seed"]))
+    model = case.get("model")
+    if model is not None:
+        entry = manifest["world_models"].get(model, {})
+        out["world_model_sha256"] = entry.get("weights_sha256")
+        out.update(entry.get("caution", {}))
+    return out
+
+
+def _parse(data: bytes, path: Path, first_line: int = 1) -> list[dict]:
+    lines = data.split(b"\n")
+    rows = []
+    for i, line in enumerate(lines):
+        number = first_line + i
+        if not line.strip():
+            continue
+        last = i == len(lines) - 1  # no newline after it: it was never finished
+        try:
+            row = json.loads(line)
+            if not isinstance(row, dict):
+                raise ValueError("not a JSON object")
+        except (ValueError, UnicodeDecodeError) as error:
+            if last:
+                warnings.warn(f"{path}: line {number} is torn (a writer stopped mid-row; {len(line)} bytes, "
+                              f"{error}); its episode will be played again", TornRowWarning, stacklevel=3)  # fmt: skip
+                continue
+            raise StoreError(f"{path}: line {number} is not a JSON row ({error}); the file is damaged") from None
+        if last:
+            warnings.warn(f"{path}: line {number} has no newline (a writer stopped before finishing it); its "
+                          f"episode will be played again", TornRowWarning, stacklevel=3)  # fmt: skip
+            continue
+        rows.append(row)
+    return rows
+
+
+def runs(root: str | os.PathLike, role: str | None = None) -> list[Run]:
+    """The runs of a store (with role `role`, if given), by name."""
+    found = [Run(root, p.parent.name) for p in sorted(Path(root).glob("runs/*/manifest.json"))]
+    return [r for r in found if role is None or r.manifest()["role"] == role]
+
+
+def evaluation_rows(root: str | os.PathLike) -> list[dict]:
+    """The rows Table 1 counts: the current rows of every evaluation run. A case in two evaluation runs is refused,
+    naming both."""
+    seen: dict[tuple, str] = {}
+    out = []
+    for run in runs(root, "evaluation"):
+        for row in run.current():
+            key = case_key(row)
+            if key in seen:
+                raise StoreError(f"{root}: episode {dict(zip(CASE_KEYS, key, strict=True))} is in two evaluation runs, "
+                                 f"{seen[key]!r} and {run.name!r}; mark one as another role")  # fmt: skip
+            seen[key] = run.name
+            out.append(row)
+    return out
+
+
+#: episodes file → (bytes read, lines read, its rows by identity): a process reads only what others added since.
+_INDEX: dict[Path, tuple[int, int, dict[str, dict]]] = {}
+#: POSIX locks do not exclude threads of the same process; this does.
+_THREADS = threading.Lock()
+
+
+def _identity(row: Mapping) -> str:
+    return json.dumps([case_key(row), provenance_of(row)])
+
+
+def _index(f, path: Path, truncate: bool = False) -> dict[str, dict]:
+    """The rows of the open file `f` by identity (read incrementally); with `truncate` (under the lock), a torn
+    last line is cut off."""
+    key = path.resolve()
+    offset, lines, index = _INDEX.get(key, (0, 0, {}))
+    size = f.seek(0, os.SEEK_END)
+    if size < offset:  # rewritten by someone else: start over
+        offset, lines, index = 0, 0, {}
+    f.seek(offset)
+    data = f.read()
+    intact = data.rfind(b"\n") + 1
+    index = {**index, **{_identity(r): r for r in _parse(data[:intact], path, first_line=lines + 1)}}
+    lines += data[:intact].count(b"\n")
+    if truncate and intact < len(data):  # only under the lock is an unfinished line known to be torn
+        _parse(data[intact:], path, first_line=lines + 1)  # reports it
+        f.truncate(offset + intact)
+    _INDEX[key] = (offset + intact, lines, index)
+    return index

@@ -1,0 +1,44 @@
+"""Every snippet of README.md runs as written: its Python blocks, and its shell blocks other than set-up and servers
+(which CI and the deployment test run), in a temporary folder so the checkout stays clean."""
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+BLOCKS = re.findall(r"```(\w+)\n(.*?)```", README, flags=re.S)
+#: Shell blocks these tests leave to others: set-up (CI runs it) and long-running servers (the deployment test).
+NOT_HERE = ("pip install", "prefect server", "flows.serve")
+
+
+def test_the_readme_is_small_and_has_its_snippets():
+    assert len(README.encode()) <= 12_000
+    assert [lang for lang, _ in BLOCKS].count("python") >= 1 and any("flows.replay" in b for _, b in BLOCKS)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", [i for i, (lang, _) in enumerate(BLOCKS) if lang == "python"])
+def test_python_snippet_runs(index, tmp_path):
+    proc = subprocess.run([sys.executable, "-c", BLOCKS[index][1]], cwd=ROOT, capture_output=True, text=True,
+                          timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.strip(), "a README snippet that prints nothing shows nothing"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "index", [i for i, (lang, body) in enumerate(BLOCKS) if lang == "bash" and not any(s in body for s in NOT_HERE)]
+)
+def test_shell_snippet_runs(index, tmp_path):
+    for line in BLOCKS[index][1].splitlines():
+        command = line.split("#", 1)[0].strip()
+        if not command:
+            continue
+        assert command.startswith(".venv/bin/python -m "), command
+        argv = [sys.executable, *command.removeprefix(".venv/bin/python").split()]
+        proc = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, f"{command}\n{proc.stderr[-3000:]}"

@@ -1,0 +1,190 @@
+"""The results store: runs with manifests, appends that never duplicate or lose a row (threads, processes, a real
+Dask cluster, a killed evaluation), torn rows, stale rows, and Table 1's refusal to mix provenance."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import pytest
+
+from dynplan.data.collect import record_episode
+from dynplan.evaluation.legacy import import_folder
+from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.evaluation.store import Run, StoreError, TornRowWarning, evaluation_rows
+from dynplan.evaluation.table import aggregate
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def row(seed=EVAL_SEED_START, technique="oracle", k=3, outcome="goal", model=None, **extra):
+    base = {"technique": technique, "agent_speed": 1.0, "rollout_steps": k, "seed": seed, "model": model,
+            "outcome": outcome, "steps": 20, "playouts": 100, "log_sha256": f"log{seed}", "decision_ms": [1.0],
+            "wall_s": 0.1}  # fmt: skip
+    if model:
+        base["world_model_sha256"] = "w1"
+    return {**base, **extra}
+
+
+def begin(run, role="evaluation", seeds=(EVAL_SEED_START, EVAL_SEED_START + 1), weights="w1", caution=None):
+    models = {"default": {"weights_sha256": weights, "weights": [], "caution": caution or {}}}
+    return run.begin(role, 100, seeds, {s: f"log{s}" for s in seeds}, models, "cmd")
+
+
+def test_rows_round_trip_and_a_case_is_written_once(tmp_path):
+    run = Run(tmp_path)
+    assert run.rows() == [] and run.append(row()) and not run.append(row())  # same case, same provenance
+    assert run.append(row(playouts=20))  # same case played differently: a row of its own
+    assert run.rows() == [row(), row(playouts=20)]
+    assert all(json.loads(line) for line in run.episodes_path.read_text().splitlines())
+
+
+def test_a_torn_last_row_is_reported_cut_and_played_again(tmp_path):
+    run = Run(tmp_path)
+    run.append(row(EVAL_SEED_START))
+    with open(run.episodes_path, "ab") as f:
+        f.write(json.dumps(row(EVAL_SEED_START + 1)).encode()[:40])  # a writer killed mid-line
+    with pytest.warns(TornRowWarning, match=r"episodes.jsonl: line 2 is torn"):
+        assert run.rows() == [row(EVAL_SEED_START)]
+    assert Run(tmp_path).find(row(EVAL_SEED_START + 1), {}) is None
+    with pytest.warns(TornRowWarning):
+        assert run.append(row(EVAL_SEED_START + 1))
+    assert run.rows() == [row(EVAL_SEED_START), row(EVAL_SEED_START + 1)]
+
+
+def test_a_damaged_row_names_the_file_and_line(tmp_path):
+    run = Run(tmp_path)
+    run.append(row(EVAL_SEED_START))
+    with open(run.episodes_path, "ab") as f:
+        f.write(b"{not json\n")
+    with pytest.raises(StoreError, match=r"runs/evaluation/episodes.jsonl: line 2 is not a JSON row"):
+        Run(tmp_path).rows()
+    (run.manifest_path).write_text("{}")
+    with pytest.raises(StoreError, match=r"manifest.json: not a dynplan-run/1 manifest"):
+        run.manifest()
+    with pytest.raises(StoreError, match=r"run name '\.\./up' is invalid"):
+        Run(tmp_path, "../up")
+
+
+def test_manifest_keeps_its_role_and_stale_rows_stop_counting(tmp_path):
+    run = Run(tmp_path)
+    begin(run)
+    run.append(row(technique="samples5", model="default"))
+    run.append(row(EVAL_SEED_START + 1))
+    assert len(run.current()) == 2
+    with pytest.raises(StoreError, match="has role evaluation; this invocation plays a validation run"):
+        begin(run, role="validation")
+    manifest = begin(run, weights="w2")  # new weights for the default configuration: its rows are stale
+    assert len(manifest["invocations"]) == 2 and manifest["invocations"][1]["code_version"].startswith("dynplan")
+    assert run.current() == [row(EVAL_SEED_START + 1)] and len(run.rows()) == 2
+    run.append(row(technique="samples5", model="default", world_model_sha256="w2"))
+    assert len(run.current()) == 2
+
+
+def test_table1_refuses_mixed_provenance_naming_the_field(tmp_path):
+    a = row(technique="samples5", model="default", margin=1)
+    with pytest.raises(ValueError, match=r"samples5 \[default\] at speed 1.0, k=3 mix world_model_sha256 values"):
+        aggregate([a, row(EVAL_SEED_START + 1, technique="samples5", model="default", margin=1,
+                          world_model_sha256="w2")])  # fmt: skip
+    with pytest.raises(ValueError, match="mix margin values"):
+        aggregate([a, row(EVAL_SEED_START + 1, technique="samples5", model="default")])
+    with pytest.raises(ValueError, match=r"hold seed\(s\) \[1000000\] more than once"):
+        aggregate([row(), row(outcome="death")])
+    one, two = Run(tmp_path, "evaluation"), Run(tmp_path, "evaluation-2")
+    for run in (one, two):
+        begin(run)
+        run.append(row())
+    with pytest.raises(StoreError, match="is in two evaluation runs, 'evaluation' and 'evaluation-2'"):
+        evaluation_rows(tmp_path)
+
+
+def _append_many(root: str, name: str, seeds: list[int]) -> int:
+    run = Run(root, name)
+    return sum(run.append(row(seed)) for seed in seeds)
+
+
+def test_concurrent_threads_and_processes_neither_lose_nor_duplicate(tmp_path):
+    seeds = list(range(EVAL_SEED_START, EVAL_SEED_START + 40))
+    with ThreadPoolExecutor(4) as pool:  # every writer tries every row
+        assert sum(pool.map(_append_many, [str(tmp_path)] * 4, ["threads"] * 4, [seeds] * 4)) == 40
+    import multiprocessing
+
+    with multiprocessing.get_context("spawn").Pool(3) as pool:
+        added = pool.starmap(_append_many, [(str(tmp_path), "processes", seeds)] * 3)
+    assert sum(added) == 40
+    for name in ("threads", "processes"):
+        assert sorted(r["seed"] for r in Run(tmp_path, name).rows()) == seeds
+
+
+@pytest.mark.slow
+def test_dask_workers_neither_lose_nor_duplicate_rows(tmp_path, dask_cluster):
+    from distributed import Client
+
+    seeds = list(range(EVAL_SEED_START, EVAL_SEED_START + 60))
+    run = Run(tmp_path, "dask")
+    rows = [row(seed) for seed in seeds + seeds[:30]]  # the first 30 rows twice: one of each pair must lose
+    with Client(dask_cluster.address, timeout=60) as client:
+        futures = client.map(run.append, rows, pure=False)
+        added = client.gather(futures)
+        where = {client.who_has(f)[f.key][0] for f in futures if client.who_has(f).get(f.key)}
+    assert sum(added) == 60 and len(where) == 2  # both workers appended
+    assert sorted(r["seed"] for r in run.rows()) == seeds
+
+
+def test_legacy_result_folders_import_with_their_provenance(tmp_path):
+    legacy = tmp_path / "old"
+    records = [row(EVAL_SEED_START + i, technique="samples5", model="default", occupancy=0.1) for i in range(3)]
+    records.append(row(EVAL_SEED_START))
+    for r in records:
+        group = f"{r['technique']}-{r['model']}" if r["model"] else r["technique"]
+        path = legacy / "episodes" / group / "speed1_k3" / f"seed{r['seed']}.json"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(r))
+    run = Run(tmp_path / "store", "evaluation")
+    assert import_folder(legacy, run, "evaluation", ["python -m flows.evaluate"]) == 4
+    manifest = run.manifest()
+    assert manifest["world_models"]["default"] == {"weights_sha256": "w1", "weights": [], "caution": {"occupancy": 0.1}}
+    assert len(run.current()) == 4 and aggregate(run.current()) == aggregate(records)
+    with pytest.raises(StoreError, match="exists already"):
+        import_folder(legacy, run, "evaluation", [])
+    path.write_text(json.dumps({**records[0], "seed": EVAL_SEED_START + 7, "margin": 2}))
+    with pytest.raises(StoreError, match="mix default caution"):
+        import_folder(legacy, Run(tmp_path / "store", "again"), "candidate", [])
+
+
+@pytest.mark.slow
+def test_a_killed_evaluation_resumes_with_every_episode_exactly_once(tmp_path):
+    logs, results = tmp_path / "logs", tmp_path / "results"
+    for i in range(3):
+        record_episode(logs, EVAL_SEED_START + i)
+    argv = [sys.executable, "-m", "flows.evaluate", "--techniques", "oracle", "zero", "--agent-speeds", "0.5",
+            "--rollout-steps", "10", "--episodes", "3", "--playouts", "400", "--workers", "1", "--log-dir", str(logs),
+            "--results-dir", str(results)]  # fmt: skip
+    episodes = Run(results).episodes_path
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and proc.poll() is None:
+            if episodes.exists() and episodes.read_bytes().count(b"\n") >= 1:
+                break
+            time.sleep(0.05)
+        assert proc.poll() is None, "the evaluation finished before it could be killed; give it more work"
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)  # the flow and its temporary Prefect server
+        proc.wait()
+    played = episodes.read_bytes().count(b"\n")
+    assert 1 <= played < 6
+    with open(episodes, "ab") as f:
+        f.write(b'{"technique": "oracle", "agent_')  # as if killed mid-row
+    done = subprocess.run([*argv, "--json"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    rows = Run(results).rows()
+    assert sorted((r["technique"], r["seed"]) for r in rows) == sorted(
+        (t, EVAL_SEED_START + i) for t in ("oracle", "zero") for i in range(3)
+    )
+    assert episodes.read_bytes().endswith(b"\n") and len(evaluation_rows(results)) == 6
