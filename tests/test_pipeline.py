@@ -10,6 +10,7 @@ import pytest
 import torch
 
 from dynplan.config import ConfigError
+from dynplan.evaluation.store import Run
 from dynplan.pipeline.presets import PIPELINE_PRESETS, EvalPlan, PipelinePreset
 
 
@@ -51,12 +52,14 @@ def test_end_to_end_run_writes_the_report_and_reruns_from_cache(tmp_path, prefec
     assert "<table>" in (work / "report" / "report.html").read_text()
     for picture in ("prediction_error.png", "figure1.png", "episode.gif"):
         assert (work / "report" / picture).stat().st_size > 1000
-    results = sorted((work / "results" / "episodes").rglob("*.json"))
-    assert len(results) == 2  # oracle and mid, one episode each
-    before = _files(work / "checkpoints") | _files(work / "models") | _files(work / "results" / "episodes")
+    run = Run(work / "results")
+    assert len(run.rows()) == 2 and run.manifest()["role"] == "evaluation"  # oracle and mid, one episode each
+    before = (
+        _files(work / "checkpoints") | _files(work / "models") | {run.episodes_path: run.episodes_path.read_bytes()}
+    )
 
     collect_train_eval(preset="smoke", out=str(tmp_path))
-    after = _files(work / "checkpoints") | _files(work / "models") | _files(work / "results" / "episodes")
+    after = _files(work / "checkpoints") | _files(work / "models") | {run.episodes_path: run.episodes_path.read_bytes()}
     assert after == before  # nothing retrained, reinstalled or replayed
     rerun = (work / "report" / "report.md").read_text()
     assert "| vqvae [default] | " in rerun and "cached, 1 epochs" in rerun and "0 recorded now" in rerun
@@ -82,11 +85,8 @@ def test_pipeline_on_a_dask_cluster_equals_a_local_run(tmp_path, dask_cluster, p
     assert "Task run 'evaluate-episode" in worker_logs and "Task run 'inspect-log" in worker_logs
 
     def outcomes(root):
-        found = {}
-        for path in (root / "smoke" / "results" / "episodes").rglob("*.json"):
-            record = json.loads(path.read_text())
-            found[path.relative_to(root)] = (record["outcome"], record["steps"], record["log_sha256"])
-        return found
+        return {(r["technique"], r["model"], r["seed"]): (r["outcome"], r["steps"], r["log_sha256"])
+                for r in Run(root / "smoke" / "results").rows()}  # fmt: skip
 
     assert outcomes(cluster) == outcomes(local) and len(outcomes(local)) == 2
     for name in ("vqvae.pt", "pixelcnn.pt"):  # trained locally in both: the same weights from the same data
