@@ -6,8 +6,8 @@ Importing dynplan registers the Gymnasium environment `dynplan/Road-v0`.
 import gymnasium
 
 from dynplan.env import RoadConfig, RoadEnv, World, generate_world
+from dynplan.version import __version__
 
-__version__ = "0.1.0"
 __all__ = ["RoadConfig", "RoadEnv", "World", "__version__", "generate_world"]
 
 if "dynplan/Road-v0" not in gymnasium.registry:

@@ -35,10 +35,10 @@ from dynplan.data.store import sha256_file
 from dynplan.evaluation.protocol import EVAL_SEED_START
 from dynplan.evaluation.table import aggregate, load_results
 from dynplan.files import atomic_path, write_bytes_atomic
+from dynplan.models import checkpoint as checkpoints
 from dynplan.models import pretrained_path
 from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset
 from dynplan.pipeline.report import StageRecord, checkpoint_record, draw_figures, render_report, write_report
-from dynplan.training import checkpoint as checkpoints
 from flows.build_datasets import build_datasets
 from flows.collect import collect_episodes
 from flows.evaluate import evaluate_planner

@@ -30,11 +30,8 @@ from dynplan.evaluation.protocol import (
     AGENT_SPEEDS,
     EVAL_EPISODES,
     EVAL_SEED_START,
-    LEARNED,
-    MODELS,
     ROLLOUT_STEPS,
     VALIDATION_SEED_START,
-    WORLD_MODELS,
     Case,
     begin_run,
     cases,
@@ -43,7 +40,9 @@ from dynplan.evaluation.protocol import (
 )
 from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
+from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
+from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
 from flows.collect import collect_episodes
@@ -105,13 +104,17 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
 
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(prog="python -m flows.evaluate", description=__doc__)
-    parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=sorted(MODELS))
+    parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=list(TECHNIQUES),
+                        metavar="TECHNIQUE", help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
+                        + " (default: oracle zero random)")  # fmt: skip
     parser.add_argument(
         "--models",
         nargs="+",
         default=["default"],
-        choices=WORLD_MODELS,
-        help="world-model configurations for the learned techniques (mid, samples5, samples10)",
+        choices=list(WORLD_MODELS),
+        help="world-model configurations for the learned techniques ("
+        + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model)
+        + ")",
     )
     parser.add_argument("--agent-speeds", nargs="+", type=float, default=list(AGENT_SPEEDS))
     parser.add_argument("--rollout-steps", nargs="+", type=int, default=list(ROLLOUT_STEPS))
@@ -156,7 +159,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         parser.error(f"--occupancy={args.occupancy} is invalid; valid range [0, 1)")
     if args.margin is not None and not 0 <= args.margin <= 4:
         parser.error(f"--margin={args.margin} is invalid; valid range [0, 4]")
-    if args.occupancy and "paper" in args.models and set(args.techniques) & set(LEARNED):
+    if args.occupancy and "paper" in args.models and any(TECHNIQUES[t].world_model for t in args.techniques):
         parser.error("--occupancy needs patch-local codes; the paper configuration's tokenizer has none")
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")

@@ -13,9 +13,10 @@ import sys
 from prefect import flow
 
 from dynplan.config import ConfigError
-from dynplan.evaluation.protocol import WORLD_MODELS
-from dynplan.evaluation.replay import PLANNERS, default_outputs, prepare, replay
+from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
+from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.logs.reader import LogError
+from dynplan.models.registry import WORLD_MODELS
 
 
 @flow(name="replay-episode", log_prints=True)
@@ -46,10 +47,12 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument(
         "--planner",
         default="oracle",
-        choices=PLANNERS,
-        help="forward model: oracle, zero, random, or the learned model (default oracle)",
+        choices=planners(),
+        help="a technique ("
+        + ", ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
+        + "), or model: the learned model with --samples and --futures (default oracle)",
     )
-    parser.add_argument("--model", default="default", choices=WORLD_MODELS, help="learned model configuration")
+    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS), help="learned model configuration")
     parser.add_argument("--samples", type=int, default=0, help="decoder samples merged by the learned model (0: Mid)")
     parser.add_argument("--futures", type=int, default=0, help="code futures sampled from the prior and merged")
     parser.add_argument("--agent-speed", type=float, default=1.0, help="1.0 (the paper's 2×) or 0.5 (1×)")

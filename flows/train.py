@@ -20,11 +20,12 @@ from prefect.cache_policies import NO_CACHE
 from prefect.context import TaskRunContext
 
 from dynplan.config import ConfigError
-from dynplan.data.codes import build_codes
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
-from dynplan.models.vqvae import PRESETS, VQVAEConfig
-from dynplan.training import checkpoint
-from dynplan.training.checkpoint import digest
+from dynplan.models import checkpoint
+from dynplan.models.checkpoint import digest
+from dynplan.models.pixelcnn import PixelCNNConfig
+from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.models.vqvae import VQVAEConfig
+from dynplan.training.codes import build_codes
 from dynplan.training.loop import TrainBudget
 from dynplan.training.pixelcnn import train_pixelcnn
 from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
@@ -77,7 +78,7 @@ def build_codes_task(store: str, checkpoint: str, name: str) -> str:
 def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
                      budget: dict | None = None, overrides: dict | None = None) -> str:  # fmt: skip
     """Train the VQ-VAE preset `model` (with optional config `overrides`) on `store`."""
-    config = PRESETS[model].model_copy(update=overrides or {})
+    config = world_model_spec(model).tokenizer.model_copy(update=overrides or {})
     config = VQVAEConfig(**config.model_dump())  # validate the overrides
     path = train_vqvae_task(store, out, config.model_dump(), TrainBudget(**(budget or {})).model_dump())
     print(f"checkpoint: {path}")
@@ -94,7 +95,7 @@ def train_pixelcnn_flow(store: str = "datasets/frames.zarr", model: str = "defau
                         codes: str | None = None) -> str:  # fmt: skip
     """Train the PixelCNN prior preset `model` on the store's `codes_<model>` (made by the VQ-VAE flow), or on
     the code array `codes` (an experiment's tokenizer)."""
-    config = PixelCNNConfig(**PIXELCNN_PRESETS[model].model_copy(update=overrides or {}).model_dump())
+    config = PixelCNNConfig(**world_model_spec(model).prior.model_copy(update=overrides or {}).model_dump())
     path = train_pixelcnn_task(store, codes or f"codes_{model}", out, config.model_dump(),
                                TrainBudget(**(budget or {})).model_dump())  # fmt: skip
     print(f"checkpoint: {path}")
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m flows.train", description=__doc__)
     parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
     parser.add_argument("--store", default="datasets/frames.zarr", help="frames store from flows.build_datasets")
-    parser.add_argument("--model", default="default", choices=["default", "paper"], help="configuration preset")
+    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS), help="world-model configuration")
     parser.add_argument("--out", default="datasets/checkpoints", help="folder for training runs")
     parser.add_argument("--epochs", type=int, default=TrainBudget().epochs)
     parser.add_argument("--steps-per-epoch", type=int, default=TrainBudget().steps_per_epoch)
@@ -123,9 +124,9 @@ def main(argv: list[str] | None = None) -> str:
                              threads=args.threads, init_from=args.init_from,
                              device=args.device).model_dump()  # fmt: skip
         if args.stage == "vqvae":
-            VQVAEConfig(**{**PRESETS[args.model].model_dump(), **overrides})
+            VQVAEConfig(**{**world_model_spec(args.model).tokenizer.model_dump(), **overrides})
         else:
-            PixelCNNConfig(**{**PIXELCNN_PRESETS[args.model].model_dump(), **overrides})
+            PixelCNNConfig(**{**world_model_spec(args.model).prior.model_dump(), **overrides})
         if args.init_from and not Path(args.init_from).is_file():
             raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
         if not Path(args.store).exists():

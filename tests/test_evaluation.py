@@ -186,22 +186,22 @@ def test_the_search_never_looks_past_the_timeout_frame(eval_logs):
 def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch):
     import torch
 
-    import dynplan.evaluation.protocol as protocol
-    from dynplan.models.caution import CAUTION
+    import dynplan.models.world_model as world_model
     from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+    from dynplan.models.registry import WORLD_MODELS
     from dynplan.models.vqvae import VQVAE, VQVAEConfig
 
     torch.manual_seed(0)
     tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
                                   likelihood="categorical", local=True))  # fmt: skip
     prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=2, condition_channels=8))
-    monkeypatch.setattr(protocol, "_learned_parts", lambda model, model_dir: (tokenizer, prior))
+    monkeypatch.setattr(world_model, "world_model_parts", lambda paths, model: (tokenizer, prior))
     all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
     run = Run(tmp_path)
     records = [run_case(c, eval_logs, run, playouts=5) for c in all_cases]
     assert records[0]["world_model_sha256"] == "missing+missing" or "+" in records[0]["world_model_sha256"]
-    assert records[0]["occupancy"] == CAUTION["default"].occupancy > 0  # a result says which caution it played with
+    assert records[0]["occupancy"] == WORLD_MODELS["default"].caution.occupancy > 0  # a result says its caution
     stale = {k: v for k, v in records[0].items() if k != "occupancy"}  # played before the threshold existed
     old = Run(tmp_path, "old")
     old.append(stale)
@@ -224,7 +224,7 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
 
 
 def test_replay_with_the_learned_model_names_missing_checkpoints(eval_logs, tmp_path):
-    from dynplan.training.checkpoint import CheckpointError
+    from dynplan.models.checkpoint import CheckpointError
 
     with pytest.raises(CheckpointError, match=r"no world model checkpoints at .*paper/vqvae.pt"):
         replay(log_path(eval_logs, EVAL_SEED_START), "model", model="paper", model_dir=str(tmp_path))

@@ -96,11 +96,12 @@ def test_config_errors():
 def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_logs):
     import numpy as np
 
-    from dynplan.data.codes import build_codes
     from dynplan.data.store import build_frame_store_from_logs, list_logs
+    from dynplan.models.checkpoint import load_pixelcnn_checkpoint
     from dynplan.models.vqvae import VQVAEConfig
+    from dynplan.training.codes import build_codes
     from dynplan.training.loop import TrainBudget
-    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint, train_pixelcnn
+    from dynplan.training.pixelcnn import train_pixelcnn
     from dynplan.training.vqvae import train_vqvae
 
     store = tmp_path / "frames.zarr"

@@ -1,5 +1,7 @@
 """The VQ-VAE: shapes and round trips, likelihoods, quantizer, and small real trainings (resume, cache, errors)."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
@@ -9,11 +11,11 @@ from dynplan.data.datasets import FrameDataset
 from dynplan.data.patches import distinct_patches
 from dynplan.data.store import build_frame_store_from_logs, list_logs
 from dynplan.env import RoadConfig, generate_world
+from dynplan.models.checkpoint import CheckpointError, load_vqvae_checkpoint
 from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
 from dynplan.models.vqvae import PRESETS, SHARPNESS_GRID, VQVAE, VQVAEConfig
-from dynplan.training.checkpoint import CheckpointError
-from dynplan.training.vqvae import TrainBudget, content_sample, load_vqvae_checkpoint, train_vqvae
+from dynplan.training.vqvae import TrainBudget, content_sample, train_vqvae
 
 TINY = VQVAEConfig(name="tiny", channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16, n_mixtures=3,
                    batch_size=8)  # fmt: skip
@@ -203,8 +205,8 @@ def test_codes_store_matches_the_encoder_and_is_incremental(tmp_path, store, rec
     import xarray as xr
     import zarr
 
-    from dynplan.data.codes import build_codes
     from dynplan.data.datasets import WindowDataset
+    from dynplan.training.codes import build_codes
 
     local = tmp_path / "frames.zarr"
     shutil.copytree(store, local)
@@ -261,7 +263,7 @@ def test_a_run_can_start_from_another_runs_weights(tmp_path, store):
 
 def test_fields_added_later_keep_earlier_configs_keys():
     """Checkpoints and run folders are keyed by the config's dict: a field left at its neutral value is not in it."""
-    from dynplan.training.checkpoint import digest
+    from dynplan.models.checkpoint import digest
 
     assert "goal_weight" not in PRESETS["paper"].model_dump()
     assert PRESETS["default"].model_dump()["goal_weight"] == 10.0
@@ -312,7 +314,7 @@ def test_an_interrupted_encoding_resumes_after_its_last_batch(tmp_path, store, m
     import dask.array as da
     import zarr
 
-    from dynplan.data import codes as codes_module
+    from dynplan.training import codes as codes_module
 
     local = tmp_path / "frames.zarr"
     shutil.copytree(store, local)
@@ -462,7 +464,7 @@ def test_calibrated_codes_sample_as_certainly_as_the_data_and_keep_their_mid_poi
 
 
 def test_a_calibrated_tokenizer_can_start_from_an_uncalibrated_ones_weights(tmp_path):
-    from dynplan.training import checkpoint
+    from dynplan.models import checkpoint
     from dynplan.training.loop import warm_start
 
     plain = VQVAEConfig(channels=(16,), strides=(2,), latent_dim=4, codebook_size=8, likelihood="categorical",
@@ -480,3 +482,31 @@ def test_a_calibrated_tokenizer_can_start_from_an_uncalibrated_ones_weights(tmp_
                                                         "model": calibrated.state_dict()})  # fmt: skip
     warm_start(back, str(path), "vqvae")  # the other way: the scales are dropped
     torch.testing.assert_close(back.decoder[-1].weight, source.decoder[-1].weight)
+
+
+def test_encode_and_decode_take_numpy_and_return_what_they_are_given():
+    from dynplan.models import load_vqvae
+
+    tokenizer = load_vqvae()
+    frames = generate_world(RoadConfig(), 1_000_000).frames[:8]  # uint8 numpy, as the env gives them
+    codes = tokenizer.encode(frames)
+    assert isinstance(codes, np.ndarray) and codes.shape == (8, 12, 12) and codes.dtype == np.int64
+    assert torch.equal(torch.from_numpy(codes), tokenizer.encode(torch.from_numpy(frames)))
+    decoded = tokenizer.decode(codes.astype(np.uint16))  # the store's code dtype
+    assert isinstance(decoded, np.ndarray) and decoded.dtype == np.uint8 and decoded.shape == frames.shape
+    assert tokenizer.encode(frames[0]).shape == (12, 12) and tokenizer.decode(codes[0]).shape == (48, 48)
+    for call, message in [
+        (
+            lambda: tokenizer.encode(frames.astype(np.float32)),
+            re.escape(
+                "VQVAE.encode: frames must be uint8 frames (N, H, W) or one (H, W); got float32 of shape (8, 48, 48)"
+            ),
+        ),
+        (lambda: tokenizer.encode(frames[None]), re.escape("got uint8 of shape (1, 8, 48, 48)")),
+        (lambda: tokenizer.decode(codes.astype(np.float64)), "VQVAE.decode: codes must be integer codes"),
+        (lambda: tokenizer.decode(codes + 4096), r"codes must lie in \[0, 4096\)"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            call()
+    with pytest.raises(TypeError, match="VQVAE.encode: frames must be a numpy array or a torch tensor"):
+        tokenizer.encode(frames.tolist())

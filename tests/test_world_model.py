@@ -7,13 +7,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from dynplan.env import GOAL_VALUE, RoadConfig, generate_world
-from dynplan.models.caution import CAUTION, Caution, caution_for
+from dynplan.models.caution import Caution
+from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.registry import WORLD_MODELS, caution_for
 from dynplan.models.vqvae import VQVAE, VQVAEConfig
 from dynplan.models.world_model import LearnedWorldModel, load_world_model, merge_samples, widen_obstacles
 from dynplan.planning.episode import run_episode
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
-from dynplan.training.checkpoint import CheckpointError
 
 
 def test_merge_takes_the_union_of_obstacles_and_the_median_goal():
@@ -145,8 +146,8 @@ def test_margin_widens_the_planners_frames_and_names_its_range(tiny_model):
 
 
 def test_each_configuration_has_its_caution_and_overrides_are_checked():
-    assert CAUTION["paper"] == Caution()  # the paper's method: the argmax alone
-    assert caution_for("default", {"margin": 2}).occupancy == CAUTION["default"].occupancy
+    assert WORLD_MODELS["paper"].caution == Caution()  # the paper's method: the argmax alone
+    assert caution_for("default", {"margin": 2}).occupancy == WORLD_MODELS["default"].caution.occupancy
     assert caution_for("default", {"margin": 2}).recorded()["margin"] == 2
     assert Caution().recorded() == {}  # a result played without caution records nothing (no caution fields: none used)
     with pytest.raises(ValueError, match=r"margin=7 is invalid .* valid range \[0, 4\]"):

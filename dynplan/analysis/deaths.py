@@ -25,10 +25,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from dynplan.env.config import FREE, GOAL_VALUE
-from dynplan.evaluation.protocol import LEARNED, MODELS, ROLLOUT_STEPS, WORLD_MODELS, Case, case_agent, log_path
+from dynplan.evaluation.protocol import ROLLOUT_STEPS, Case, case_agent, log_path
+from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import read_episode_log
 from dynplan.models.caution import Caution
+from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.episode import run_episode
 
 CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
@@ -137,8 +139,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
     parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.deaths", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--technique", default="samples5", choices=sorted(set(MODELS) - {"random"}))
-    parser.add_argument("--model", default="default", choices=WORLD_MODELS, help="world model of a learned technique")
+    parser.add_argument("--technique", default="samples5", choices=[n for n, t in TECHNIQUES.items() if t.search])
+    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS),
+                        help="world model of a learned technique")  # fmt: skip
     parser.add_argument("--agent-speed", type=float, default=1.0)
     parser.add_argument("--rollout-steps", type=int, nargs="+", default=list(ROLLOUT_STEPS))
     parser.add_argument("--results-dir", default="datasets/results", help="the results store")
@@ -146,7 +149,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--log-dir", default="datasets/eval_logs")
     parser.add_argument("--out", help="write the per-death causes and the summary here (JSON)")
     args = parser.parse_args(argv)
-    model = args.model if args.technique in LEARNED else None
+    model = args.model if TECHNIQUES[args.technique].world_model else None
     results = Run(args.results_dir, args.run).current() if args.run else load_results(args.results_dir)
     records = [r for r in results
                if r["technique"] == args.technique and r.get("model") == model

@@ -105,10 +105,9 @@ def world_model(model: str, samples: int = 0, futures: int = 0, prior: str | Non
     """The committed world model of configuration `model`, or its tokenizer with the prior checkpoint `prior`;
     `caution`: what overrides the configuration's own (field → value)."""
     from dynplan.models import pretrained_path
-    from dynplan.models.caution import caution_for
+    from dynplan.models.checkpoint import load_pixelcnn_checkpoint, load_vqvae_checkpoint
+    from dynplan.models.registry import caution_for
     from dynplan.models.world_model import LearnedWorldModel, load_world_model
-    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
-    from dynplan.training.vqvae import load_vqvae_checkpoint
 
     if prior is None:
         return load_world_model(model=model, samples=samples, futures=futures, caution=caution)

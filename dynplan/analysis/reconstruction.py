@@ -15,9 +15,9 @@ import torch
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.models.checkpoint import load_vqvae_checkpoint
 from dynplan.models.metrics import frame_errors
 from dynplan.models.world_model import merge_samples
-from dynplan.training.vqvae import load_vqvae_checkpoint
 
 
 def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20, samples: int = 5) -> dict[str, float]:

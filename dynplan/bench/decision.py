@@ -14,12 +14,12 @@ import torch
 
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.models.caution import caution_for
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
-from dynplan.models.vqvae import PRESETS, VQVAE
+from dynplan.models.checkpoint import CheckpointError
+from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.registry import caution_for, world_model_spec
+from dynplan.models.vqvae import VQVAE
 from dynplan.models.world_model import LearnedWorldModel, load_world_model
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
-from dynplan.training.checkpoint import CheckpointError
 
 PAPER_GPU_MS = 1700.0
 
@@ -37,9 +37,9 @@ def bench_decision(decisions: int = 30, threads: int = 2) -> dict[str, dict[str,
             model, weights = load_world_model(model=name, samples=5, caution=caution), "committed"
         except CheckpointError:
             torch.manual_seed(0)
-            prior = ConditionalPixelCNN(PIXELCNN_PRESETS[name])
+            prior = ConditionalPixelCNN(world_model_spec(name).prior)
             settings = caution_for(name, caution).model_dump()
-            model = LearnedWorldModel(VQVAE(PRESETS[name]), prior, samples=5, **settings)
+            model = LearnedWorldModel(VQVAE(world_model_spec(name).tokenizer), prior, samples=5, **settings)
             weights = "untrained"
         planner = MCTSPlanner(MCTSConfig(rollout_steps=3), agent_speed=1.0, max_steps=203)
         times = []

@@ -10,8 +10,9 @@ from collections.abc import Callable
 import torch
 
 from dynplan.models.generation import generate_fast
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
-from dynplan.models.vqvae import PRESETS, VQVAE
+from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.registry import world_model_spec
+from dynplan.models.vqvae import VQVAE
 
 TARGET_MS = 20.0
 
@@ -33,7 +34,8 @@ def bench_generation(frames: int = 5, repeats: int = 3, samples: int = 5, thread
     results = {}
     for name in ("paper", "default"):
         torch.manual_seed(0)
-        prior, tokenizer = ConditionalPixelCNN(PIXELCNN_PRESETS[name]).eval(), VQVAE(PRESETS[name]).eval()
+        spec = world_model_spec(name)
+        prior, tokenizer = ConditionalPixelCNN(spec.prior).eval(), VQVAE(spec.tokenizer).eval()
         timings = {}
         for case, generate in (("naive", ConditionalPixelCNN.generate_naive), ("fast", generate_fast)):
             _ms_per_frame(generate, prior, tokenizer, 1, samples)  # warm-up

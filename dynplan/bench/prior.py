@@ -14,8 +14,8 @@ from collections.abc import Callable
 import torch
 import torch.nn.functional as F
 
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
-from dynplan.models.vqvae import PRESETS
+from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.registry import world_model_spec
 
 
 def _channel_axis_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -43,11 +43,11 @@ def bench_prior(steps: int = 4, repeats: int = 3, threads: int = 2,
     torch.set_num_threads(threads)
     results = {}
     for name in presets:
-        config = PIXELCNN_PRESETS[name]
+        config = world_model_spec(name).prior
         torch.manual_seed(0)
         model = ConditionalPixelCNN(config).train()
         optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-        h, w = PRESETS[name].grid  # the code grid of the tokenizer this prior belongs to
+        h, w = world_model_spec(name).tokenizer.grid  # the code grid of the tokenizer this prior belongs to
         context = torch.randint(0, config.codebook_size, (config.batch_size, config.context, h, w))
         target = torch.randint(0, config.codebook_size, (config.batch_size, h, w))
         rates: dict[str, list[float]] = {"baseline": [], "ours": []}

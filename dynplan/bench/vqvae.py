@@ -13,7 +13,8 @@ import torch
 from dynplan.data.patches import tiles
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.models.vqvae import PRESETS, VQVAE
+from dynplan.models.registry import WORLD_MODELS
+from dynplan.models.vqvae import VQVAE
 
 
 def _train_rate(model: VQVAE, optimiser: torch.optim.Optimizer, batch: torch.Tensor, steps: int) -> float:
@@ -45,7 +46,7 @@ def bench_vqvae(steps: int = 20, repeats: int = 3, threads: int = 2) -> dict[str
     torch.set_num_threads(threads)
     frames = torch.from_numpy(generate_world(RoadConfig(agent_speed=0.5), 0).frames.copy())
     results = {}
-    for name, config in PRESETS.items():
+    for name, config in ((name, spec.tokenizer) for name, spec in WORLD_MODELS.items()):
         model = VQVAE(config)
         optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
         unit = "patches" if config.codebook_fit == "contents" else "frames"

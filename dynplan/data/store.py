@@ -123,7 +123,7 @@ def _geometry(info: LogInfo) -> dict:
 
 def _create(group: zarr.Group, first: LogInfo) -> None:
     T, H, W = first.n_frames, first.height, first.width
-    from dynplan import __version__
+    from dynplan.version import __version__
 
     group.attrs.update(
         episodes=0,

@@ -7,22 +7,24 @@ can be spread over a Dask cluster. Techniques build their planner and forward mo
 
 from __future__ import annotations
 
-import functools
 import os
 import time
 import zlib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 from dynplan.data.collect import log_path
 from dynplan.data.store import sha256_file
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.evaluation.store import Run, code_version
+from dynplan.evaluation.techniques import AgentInputs, technique
 from dynplan.logs.reader import LogError, read_episode_log
+from dynplan.models.checkpoint import weights_sha256
+from dynplan.models.registry import WORLD_MODELS
+from dynplan.models.world_model import world_model_paths
 from dynplan.planning.episode import run_episode
-from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
+from dynplan.planning.forward import ForwardModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
 
 #: The evaluation episodes' seeds: a range of their own, far from training seeds (which start at 0).
@@ -33,70 +35,6 @@ VALIDATION_SEED_START = 2_000_000
 EVAL_EPISODES = 100
 AGENT_SPEEDS = (1.0, 0.5)
 ROLLOUT_STEPS = (1, 3, 5, 10)
-
-#: Learned techniques → (decoder samples, sampled code futures) merged: the paper's Mid, 5 and 10 samples, and,
-#: beyond the paper, 5 futures sampled from the prior itself.
-LEARNED = {"mid": (0, 0), "samples5": (5, 0), "samples10": (10, 0), "futures5": (0, 5)}
-#: World-model configurations a learned technique can use.
-WORLD_MODELS = ("default", "paper")
-
-
-def world_model_paths(model: str, model_dir: str | os.PathLike | None = None) -> tuple[Path, Path]:
-    """The (VQ-VAE, PixelCNN) checkpoints of configuration `model`: `model_dir/<model>/{vqvae,pixelcnn}.pt` when a
-    pipeline trained its own, else the committed pretrained ones."""
-    from dynplan.models import pretrained_path
-
-    if model_dir is not None:
-        return Path(model_dir) / model / "vqvae.pt", Path(model_dir) / model / "pixelcnn.pt"
-    return pretrained_path("vqvae", model), pretrained_path("pixelcnn", model)
-
-
-def _stamp(paths: tuple[Path, ...]) -> tuple:
-    """What identifies the files' current versions cheaply (so long-lived processes see retrained weights)."""
-    return tuple((str(p), p.stat().st_mtime_ns, p.stat().st_size) if p.exists() else (str(p),) for p in paths)
-
-
-@functools.cache
-def _load_parts(stamp: tuple):
-    from dynplan.training.checkpoint import CheckpointError
-    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
-    from dynplan.training.vqvae import load_vqvae_checkpoint
-
-    missing = [entry[0] for entry in stamp if len(entry) == 1]
-    if missing:
-        raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
-                              f"`python -m flows.train vqvae|pixelcnn` or the collect-train-eval flow")  # fmt: skip
-    return load_vqvae_checkpoint(stamp[0][0]), load_pixelcnn_checkpoint(stamp[1][0])
-
-
-def _learned_parts(model: str, model_dir: str | None):
-    return _load_parts(_stamp(world_model_paths(model, model_dir)))
-
-
-def learned_model(model: str, samples: int, seed: int, futures: int = 0, model_dir: str | os.PathLike | None = None,
-                  caution: Mapping[str, float] | None = None) -> ForwardModel:  # fmt: skip
-    """The learned forward model of configuration `model` (loaded once per process and version of the
-    checkpoints; see `world_model_paths`), with the configuration's own caution (`CAUTION`) except where
-    `caution` (field → value) overrides it."""
-    from dynplan.models.caution import caution_for
-    from dynplan.models.world_model import LearnedWorldModel
-
-    parts = _learned_parts(model, None if model_dir is None else str(model_dir))
-    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed,
-                             **caution_for(model, caution).model_dump())  # fmt: skip
-
-
-#: technique → factory of its forward model for (recorded world, case, world-model folder or None) (None: the
-#: agent needs no model).
-MODELS: dict[str, Callable[[World, Case, str | None], ForwardModel | None]] = {
-    "oracle": lambda world, case, model_dir: OracleModel(world),
-    "zero": lambda world, case, model_dir: ZeroModel(),
-    "random": lambda world, case, model_dir: None,
-    **{
-        name: (lambda world, case, model_dir, n=n, f=f: learned_model(case.model, n, case.planner_seed(), f, model_dir))
-        for name, (n, f) in LEARNED.items()
-    },
-}
 
 
 @dataclass(frozen=True)
@@ -110,13 +48,12 @@ class Case:
     model: str | None = None  # the world-model configuration of a learned technique ("default" or "paper")
 
     def __post_init__(self) -> None:
-        if self.technique not in MODELS:
-            raise ValueError(f"unknown technique {self.technique!r}; known: {sorted(MODELS)}")
-        if (self.technique in LEARNED) != (self.model is not None):
-            uses = "needs a world model" if self.technique in LEARNED else "does not use a world model"
+        needs = technique(self.technique).world_model
+        if needs != (self.model is not None):
+            uses = "needs a world model" if needs else "does not use a world model"
             raise ValueError(f"technique {self.technique!r} {uses} (got model={self.model!r})")
         if self.model is not None and self.model not in WORLD_MODELS:
-            raise ValueError(f"model must be one of {WORLD_MODELS}, got {self.model!r}")
+            raise ValueError(f"model must be one of {sorted(WORLD_MODELS)}, got {self.model!r}")
 
     @property
     def group(self) -> str:
@@ -135,23 +72,19 @@ def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
     """Every case of the table: the random agent once per speed, searching techniques once per horizon, learned
     techniques once per world-model configuration in `models`."""
     out = []
-    for technique in techniques:
-        ks: tuple[int | None, ...] = (None,) if technique == "random" else rollout_steps
-        for model in models if technique in LEARNED else (None,):
+    for name in techniques:
+        t = technique(name)
+        ks: tuple[int | None, ...] = rollout_steps if t.search else (None,)
+        for model in models if t.world_model else (None,):
             for speed in speeds:
                 for k in ks:
-                    out += [Case(technique, speed, k, first_seed + i, model) for i in range(episodes)]
+                    out += [Case(name, speed, k, first_seed + i, model) for i in range(episodes)]
     return out
-
-
-@functools.cache
-def _identity(stamp: tuple) -> str:
-    return "+".join(sha256_file(entry[0]) if len(entry) > 1 else "missing" for entry in stamp)
 
 
 def _world_model_identity(model: str, model_dir: str | None) -> str:
     """SHA-256 of the checkpoints a learned technique of configuration `model` plays with."""
-    return _identity(_stamp(world_model_paths(model, model_dir)))
+    return "+".join(weights_sha256(p) if p.exists() else "missing" for p in world_model_paths(model, model_dir))
 
 
 def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir: str | None = None,
@@ -159,7 +92,7 @@ def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir
     """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights and
     caution (the configuration's own where `caution` does not override it; only the settings that are on are
     recorded, so that results from before a setting existed stay valid)."""
-    from dynplan.models.caution import caution_for
+    from dynplan.models.registry import caution_for
 
     source = log_path(log_dir, case.seed)
     provenance = {"playouts": playouts, "log_sha256": sha256_file(source) if source.exists() else None}
@@ -172,7 +105,7 @@ def _provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir
 def world_model_entry(model: str, model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> dict:
     """What a run's manifest records of world-model configuration `model`: its weights and their SHA-256, and the
     caution it plays with (only the settings that are on)."""
-    from dynplan.models.caution import caution_for
+    from dynplan.models.registry import caution_for
 
     return {"weights_sha256": _world_model_identity(model, model_dir),
             "weights": [str(p) for p in world_model_paths(model, model_dir)],
@@ -188,11 +121,7 @@ def case_agent(
 ) -> tuple[MCTSPlanner | RandomPlanner, ForwardModel | None]:
     """The planner and forward model that play `case` on its recorded `world`. `caution`: what overrides a learned
     model's configuration's own (field → value)."""
-    if case.technique in LEARNED:
-        samples, futures = LEARNED[case.technique]
-        model = learned_model(case.model, samples, case.planner_seed(), futures, model_dir, caution)
-    else:
-        model = MODELS[case.technique](world, case, model_dir)
+    model = technique(case.technique).forward(AgentInputs(world, case.model, case.planner_seed(), model_dir, caution))
     if case.rollout_steps is None:
         return RandomPlanner(case.planner_seed()), model
     config = MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts)

@@ -14,16 +14,20 @@ from pathlib import Path
 import numpy as np
 
 from dynplan.env.config import RoadConfig
-from dynplan.evaluation.protocol import MODELS, WORLD_MODELS, learned_model
+from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, learned_model, technique
 from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
 from dynplan.logs.writer import write_episode_log
+from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import Prediction
 from dynplan.planning.mcts import Decision, MCTSConfig, MCTSPlanner, RandomPlanner
 from dynplan.render import colorize, error_image, side_by_side, write_gif
 
-#: What `--planner` accepts: the oracle, zero and random baselines, or the learned world model.
-PLANNERS = ("oracle", "zero", "random", "model")
+
+def planners() -> list[str]:
+    """What a replay's planner may be: any registered technique, or "model" (the learned world model with the
+    samples and futures given)."""
+    return [*TECHNIQUES, "model"]
 
 
 def prepare(
@@ -39,9 +43,9 @@ def prepare(
 ) -> tuple[EpisodeLog, RoadConfig, MCTSConfig]:
     """Check a replay's inputs before running it: the log (LogError), the options (ConfigError/ValueError), and
     for the learned model its checkpoints (CheckpointError)."""
-    if planner not in PLANNERS:
-        raise ValueError(f"planner must be one of {list(PLANNERS)}, got {planner!r}")
-    if planner == "model":
+    if planner not in planners():
+        raise ValueError(f"planner must be one of {planners()}, got {planner!r}")
+    if planner == "model" or technique(planner).world_model:
         if model not in WORLD_MODELS or samples < 0 or futures < 0:
             raise ValueError(f"model must be one of {list(WORLD_MODELS)} and samples, futures >= 0; got "
                              f"{model!r}, {samples}, {futures}")  # fmt: skip
@@ -80,15 +84,20 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
            playouts: int = 100, out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None,
            seed: int = 0, model: str = "default", samples: int = 0, futures: int = 0,
            model_dir: str | None = None) -> ReplayResult:  # fmt: skip
-    """Run `planner` ("oracle", "zero", "random", or "model": the learned world model `model` merging `samples`
-    decoder samples and `futures` sampled futures; its checkpoints under `model_dir/<model>/` if given, else the
-    committed ones) on the episode recorded in `log`."""
+    """Run `planner` (a registered technique — oracle, zero, random, mid, samples5, … with world model `model` for
+    a learned one — or "model": the learned world model `model` merging `samples` decoder samples and `futures`
+    sampled futures; its checkpoints under `model_dir/<model>/` if given, else the committed ones) on the episode
+    recorded in `log`."""
     recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts, model, samples, futures,
                                      model_dir)  # fmt: skip
     world = recorded.world()
-    learned = planner == "model"
-    forward = learned_model(model, samples, seed, futures, model_dir) if learned else MODELS[planner](world, None, None)
-    agent = RandomPlanner(seed) if planner == "random" else MCTSPlanner(mcts, agent_speed, config.max_steps, seed)
+    if learned := planner == "model":
+        forward = learned_model(model, samples, seed, futures, model_dir)
+    else:
+        chosen = technique(planner)
+        forward = chosen.forward(AgentInputs(world, model if chosen.world_model else None, seed, model_dir))
+    searches = learned or technique(planner).search
+    agent = MCTSPlanner(mcts, agent_speed, config.max_steps, seed) if searches else RandomPlanner(seed)
     imagined: dict[int, np.ndarray] = {}
     panels: list[np.ndarray] = []
 

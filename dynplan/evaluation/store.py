@@ -26,9 +26,9 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-import dynplan
 from dynplan.files import write_bytes_atomic
 from dynplan.models.caution import Caution
+from dynplan.version import __version__
 
 FORMAT = "dynplan-run/1"
 #: evaluation: counts in Table 1; validation: the validation episodes, where settings are chosen; candidate: the
@@ -54,13 +54,13 @@ class TornRowWarning(UserWarning):
 
 def code_version() -> str:
     """The package version and, in a git checkout, the commit (with `-dirty` when tracked files changed)."""
-    root = Path(dynplan.__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     try:
         commit = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=12"],
                                 capture_output=True, text=True, timeout=10, check=True).stdout.strip()  # fmt: skip
     except (OSError, subprocess.SubprocessError):
         commit = ""
-    return f"dynplan {dynplan.__version__}" + (f" ({commit})" if commit else "")
+    return f"dynplan {__version__}" + (f" ({commit})" if commit else "")
 
 
 def case_key(row: Mapping) -> tuple:

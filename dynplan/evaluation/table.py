@@ -12,11 +12,9 @@ import numpy as np
 
 from dynplan.evaluation.paper import PAPER_RANDOM_GOALS, PAPER_TABLE1
 from dynplan.evaluation.store import evaluation_rows
+from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import write_bytes_atomic
 from dynplan.models.caution import Caution
-
-TECHNIQUE_ORDER = ("oracle", "mid", "samples5", "samples10", "zero", "random")
-
 
 #: What every episode of one table row must share: a row never mixes results played differently.
 SHARED = ("playouts", "world_model_sha256", *Caution.model_fields)
@@ -42,7 +40,8 @@ def _check_provenance(label: str, episodes: list[dict]) -> None:
 
 def _sort_key(row: dict) -> tuple:
     technique = row["technique"]
-    rank = TECHNIQUE_ORDER.index(technique) if technique in TECHNIQUE_ORDER else len(TECHNIQUE_ORDER)
+    order = list(TECHNIQUES)  # Table 1's order is the registry's
+    rank = order.index(technique) if technique in order else len(order)
     return (-row["agent_speed"], rank, technique, row.get("model") or "", row["rollout_steps"] or 0)
 
 

@@ -61,7 +61,7 @@ def _image(t: int, frame: np.ndarray) -> RawImage:
 
 def episode_metadata(world: World, n_frames: int, kind: str) -> dict[str, str]:
     """The `dynplan` metadata record of a log (all values strings, as MCAP requires)."""
-    from dynplan import __version__
+    from dynplan.version import __version__
 
     return {
         "format": FORMAT,

@@ -1,14 +1,12 @@
 """How cautious the planner's view of a learned model's prediction is: beyond the paper, per configuration.
 
 The paper plans on the greedy (argmax) future alone. Two settings make its frames more cautious, each chosen on
-validation episodes (README, "Planning with the prior's uncertainty"): `occupancy` adds the pixels the prior
+validation episodes (docs/design.md, occupancy and the lane margin): `occupancy` adds the pixels the prior
 gives at least that probability of holding an obstacle; `margin` widens every predicted obstacle along its lane.
 Kept free of torch so that the evaluation's bookkeeping can read it cheaply.
 """
 
 from __future__ import annotations
-
-from collections.abc import Mapping
 
 from pydantic import Field
 
@@ -27,13 +25,3 @@ class Caution(Config):
     def recorded(self) -> dict:
         """The settings that are on (what a result played with them records; an absent key means off)."""
         return {name: value for name, value in self.model_dump().items() if value}
-
-
-#: Per world-model configuration, its caution — the default's chosen on validation episodes, not the
-#: evaluation's (README, "Planning with the prior's uncertainty"); the paper's is off (the paper's method).
-CAUTION = {"default": Caution(occupancy=0.1, margin=1), "paper": Caution()}
-
-
-def caution_for(model: str, overrides: Mapping[str, float] | None = None) -> Caution:
-    """Configuration `model`'s own caution with `overrides` (field → value, e.g. from the command line) applied."""
-    return Caution(**{**CAUTION.get(model, Caution()).model_dump(), **(overrides or {})})

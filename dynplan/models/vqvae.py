@@ -243,8 +243,15 @@ class VQVAE(nn.Module):
             q.cluster_size[0].fill_(1.0)
 
     @torch.inference_mode()
-    def encode(self, frames: torch.Tensor) -> torch.Tensor:
-        """uint8 (N, H, W) → codes (N, h, w) (or (N, h, w, n) with several codebooks)."""
+    def encode(self, frames: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+        """uint8 frames (N, H, W), or one frame (H, W) → integer codes (N, h, w), or (h, w) (with several
+        codebooks, (…, n)). Returns the kind it is given: numpy in, numpy (int64) out; a tensor in, a tensor out."""
+        frames, numpy_in, single = _array_in(frames, "frames", "encode", "uint8 frames (N, H, W) or one (H, W)",
+                                             (2, 3), integer=False)  # fmt: skip
+        codes = self._encode(frames)
+        return _array_out(codes, numpy_in, single)
+
+    def _encode(self, frames: torch.Tensor) -> torch.Tensor:
         if self.config.local:
             codes = self._encode_distinct_patches(frames)
         else:
@@ -293,9 +300,17 @@ class VQVAE(nn.Module):
         return self.code_sharpness.clone()
 
     @torch.inference_mode()
-    def decode(self, codes: torch.Tensor) -> torch.Tensor:
-        """codes → uint8 mid-point frames (N, H, W) on the world's pixel values."""
-        return self.pixel.mid(self.decode_params(codes))
+    def decode(self, codes: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+        """Integer codes (N, h, w), or one grid (h, w) (with several codebooks, (…, n)) → uint8 mid-point frames
+        (N, H, W), or (H, W), on the world's pixel values; numpy in, numpy out."""
+        n = self.config.n_codebooks
+        dims = (2, 3) if n == 1 else (3, 4)
+        codes, numpy_in, single = _array_in(codes, "codes", "decode", "integer codes (N, h, w) or one grid (h, w)",
+                                            dims, integer=True)  # fmt: skip
+        if codes.numel() and (int(codes.min()) < 0 or int(codes.max()) >= self.config.codebook_size):
+            raise ValueError(f"VQVAE.decode: codes must lie in [0, {self.config.codebook_size}); got values in "
+                             f"[{int(codes.min())}, {int(codes.max())}]")  # fmt: skip
+        return _array_out(self.pixel.mid(self.decode_params(codes)), numpy_in, single)
 
     @torch.inference_mode()
     def decode_samples(self, codes: torch.Tensor, n: int, generator: torch.Generator | None = None) -> torch.Tensor:
@@ -311,3 +326,33 @@ class VQVAE(nn.Module):
         samples = [self.pixel.sample(params, generator) for _ in range(n)]
         empty = torch.empty(0, *params.shape[:1], *params.shape[2:], dtype=torch.uint8)
         return self.pixel.mid(params), torch.stack(samples) if samples else empty
+
+
+def _array_in(x, name: str, method: str, expect: str, dims: tuple[int, int],
+              integer: bool) -> tuple[torch.Tensor, bool, bool]:  # fmt: skip
+    """`x` as a batched tensor, whether it came as numpy, and whether it was a single item (one dimension less);
+    a wrong type, dtype or rank is one line naming the argument."""
+    numpy_in = isinstance(x, np.ndarray)
+    if not numpy_in and not isinstance(x, torch.Tensor):
+        raise TypeError(f"VQVAE.{method}: {name} must be a numpy array or a torch tensor of {expect}; "
+                        f"got {type(x).__name__}")  # fmt: skip
+    if numpy_in:
+        good = np.issubdtype(x.dtype, np.integer) if integer else x.dtype == np.uint8
+        dtype = str(x.dtype)
+    else:
+        good = (
+            (not x.is_floating_point() and not x.is_complex() and x.dtype != torch.bool)
+            if integer
+            else (x.dtype == torch.uint8)
+        )
+        dtype = str(x.dtype).removeprefix("torch.")
+    if not good or x.ndim not in dims:
+        raise ValueError(f"VQVAE.{method}: {name} must be {expect}; got {dtype} of shape {tuple(x.shape)}")
+    t = torch.from_numpy(np.ascontiguousarray(x, dtype=np.int64 if integer else np.uint8)) if numpy_in else x
+    single = x.ndim == dims[0]
+    return (t.unsqueeze(0) if single else t), numpy_in, single
+
+
+def _array_out(t: torch.Tensor, numpy_in: bool, single: bool) -> np.ndarray | torch.Tensor:
+    t = t[0] if single else t
+    return t.cpu().numpy() if numpy_in else t

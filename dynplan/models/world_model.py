@@ -29,9 +29,11 @@ import numpy as np
 import torch
 
 from dynplan.env.config import FREE, GOAL_VALUE
-from dynplan.models.caution import caution_for
+from dynplan.models import checkpoint
+from dynplan.models.checkpoint import CheckpointError, pretrained_path
 from dynplan.models.generation import generate_fast
 from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.registry import caution_for
 from dynplan.models.vqvae import VQVAE
 from dynplan.planning.forward import Prediction, goal_centres
 
@@ -168,23 +170,30 @@ class LearnedWorldModel:
         return Prediction.from_frames(mid)
 
 
+def world_model_paths(model: str, model_dir: str | os.PathLike | None = None) -> tuple[Path, Path]:
+    """The (VQ-VAE, PixelCNN) checkpoints of configuration `model`: `model_dir/<model>/{vqvae,pixelcnn}.pt` when a
+    pipeline trained its own, else the committed pretrained ones."""
+    if model_dir is not None:
+        return Path(model_dir) / model / "vqvae.pt", Path(model_dir) / model / "pixelcnn.pt"
+    return pretrained_path("vqvae", model), pretrained_path("pixelcnn", model)
+
+
+def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple:
+    """The (tokenizer, prior) in `paths`, loaded once per content of the files (see `checkpoint.cached`)."""
+    missing = [str(p) for p in paths if not Path(p).exists()]
+    if missing:
+        raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
+                              f"`python -m flows.train vqvae|pixelcnn --model {model}` or the collect-train-eval "
+                              "flow")  # fmt: skip
+    return checkpoint.cached(checkpoint.VQVAE_KIND, paths[0]), checkpoint.cached(checkpoint.PIXELCNN_KIND, paths[1])
+
+
 def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0, futures: int = 0,
                      seed: int = 0, caution: Mapping[str, float] | None = None) -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
     pretrained checkpoints of the configuration `model` ("default" or "paper"), with the configuration's own
-    caution (`CAUTION`) except where `caution` (field → value) overrides it."""
-    from dynplan.models import pretrained_path
-    from dynplan.training.checkpoint import CheckpointError
-    from dynplan.training.pixelcnn import load_pixelcnn_checkpoint
-    from dynplan.training.vqvae import load_vqvae_checkpoint
-
-    if path is None:
-        paths = pretrained_path("vqvae", model), pretrained_path("pixelcnn", model)
-    else:
-        paths = Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt"
-    missing = [str(p) for p in paths if not p.exists()]
-    if missing:
-        raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
-                              f"`python -m flows.train vqvae|pixelcnn --model {model}`")  # fmt: skip
-    tokenizer, prior = load_vqvae_checkpoint(paths[0]), load_pixelcnn_checkpoint(paths[1])
+    caution (`CAUTION`) except where `caution` (field → value) overrides it. Weights are loaded once per content
+    and shared by every model built on them."""
+    paths = world_model_paths(model) if path is None else (Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt")
+    tokenizer, prior = world_model_parts(paths, model)
     return LearnedWorldModel(tokenizer, prior, samples, futures, seed, **caution_for(model, caution).model_dump())

@@ -17,9 +17,11 @@ from typing import Any, Literal
 from pydantic import Field, model_validator
 
 from dynplan.config import Config
-from dynplan.evaluation.protocol import AGENT_SPEEDS, LEARNED, MODELS, ROLLOUT_STEPS, WORLD_MODELS
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
-from dynplan.models.vqvae import PRESETS, VQVAEConfig
+from dynplan.evaluation.protocol import AGENT_SPEEDS, ROLLOUT_STEPS
+from dynplan.evaluation.techniques import TECHNIQUES
+from dynplan.models.pixelcnn import PixelCNNConfig
+from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.models.vqvae import VQVAEConfig
 from dynplan.training.loop import TrainBudget
 
 
@@ -41,9 +43,9 @@ class EvalPlan(Config):
 
     @model_validator(mode="after")
     def _check(self) -> EvalPlan:
-        unknown = [t for t in self.techniques if t not in MODELS]
+        unknown = [t for t in self.techniques if t not in TECHNIQUES]
         if unknown:
-            raise ValueError(f"unknown techniques {unknown}; known: {sorted(MODELS)}")
+            raise ValueError(f"unknown techniques {unknown}; known: {sorted(TECHNIQUES)}")
         return self
 
 
@@ -63,9 +65,9 @@ class PipelinePreset(Config):
     @model_validator(mode="after")
     def _check(self) -> PipelinePreset:
         if not set(self.models) <= set(WORLD_MODELS):
-            raise ValueError(f"models must be among {WORLD_MODELS}, got {self.models}")
+            raise ValueError(f"models must be among {sorted(WORLD_MODELS)}, got {self.models}")
         for model in self.models:
-            VQVAEConfig(**{**PRESETS[model].model_dump(), **self.vqvae_plan(model).overrides})
+            VQVAEConfig(**{**world_model_spec(model).tokenizer.model_dump(), **self.vqvae_plan(model).overrides})
             self.pixelcnn_config(model)
         return self
 
@@ -76,17 +78,17 @@ class PipelinePreset(Config):
         return self.pixelcnn.get(model, StagePlan())
 
     def vqvae_config(self, model: str) -> VQVAEConfig:
-        return VQVAEConfig(**{**PRESETS[model].model_dump(), **self.vqvae_plan(model).overrides})
+        return VQVAEConfig(**{**world_model_spec(model).tokenizer.model_dump(), **self.vqvae_plan(model).overrides})
 
     def pixelcnn_config(self, model: str) -> PixelCNNConfig:
         """The prior's config; K always follows the VQ-VAE's codebook."""
         k = self.vqvae_config(model).codebook_size
-        return PixelCNNConfig(**{**PIXELCNN_PRESETS[model].model_dump(), **self.pixelcnn_plan(model).overrides,
+        return PixelCNNConfig(**{**world_model_spec(model).prior.model_dump(), **self.pixelcnn_plan(model).overrides,
                                  "codebook_size": k})  # fmt: skip
 
     @property
     def learned_techniques(self) -> tuple[str, ...]:
-        return tuple(t for t in self.evaluation.techniques if t in LEARNED)
+        return tuple(t for t in self.evaluation.techniques if TECHNIQUES[t].world_model)
 
 
 # Small models trained from scratch in minutes on 2 cores: the default tokenizer with 512 codes (4,096 would make
@@ -118,6 +120,8 @@ _SMOKE_PIXELCNN = StagePlan(
     budget=_SMOKE_BUDGET,
 )
 
+_BOTH = ("default", "paper")
+
 PIPELINE_PRESETS: dict[str, PipelinePreset] = {
     "quick": PipelinePreset(
         name="quick",
@@ -135,11 +139,9 @@ PIPELINE_PRESETS: dict[str, PipelinePreset] = {
         train_episodes=3000,
         models=("default", "paper"),
         pretrained=True,
-        vqvae={  # the budgets of the committed runs, so that retraining lands in their folders
-            "default": StagePlan(budget=TrainBudget(epochs=8, steps_per_epoch=1000)),
-            "paper": StagePlan(budget=TrainBudget(epochs=200, steps_per_epoch=200, threads=1)),
-        },
-        pixelcnn={m: StagePlan(budget=TrainBudget(epochs=100, steps_per_epoch=500, threads=1)) for m in WORLD_MODELS},
+        # each configuration's own training budgets (the registry's), so that retraining lands in their folders
+        vqvae={m: StagePlan(budget=TrainBudget(**world_model_spec(m).budgets["vqvae"])) for m in _BOTH},
+        pixelcnn={m: StagePlan(budget=TrainBudget(**world_model_spec(m).budgets["pixelcnn"])) for m in _BOTH},
         evaluation=EvalPlan(),
         report_episodes=10,
     ),

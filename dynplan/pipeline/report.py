@@ -15,8 +15,9 @@ from pathlib import Path
 
 from dynplan.data.collect import log_path
 from dynplan.data.store import sha256_file
-from dynplan.evaluation.protocol import EVAL_SEED_START, LEARNED
+from dynplan.evaluation.protocol import EVAL_SEED_START
 from dynplan.evaluation.table import render_markdown
+from dynplan.evaluation.techniques import technique as find_technique
 from dynplan.files import atomic_path, write_bytes_atomic
 
 
@@ -68,7 +69,7 @@ def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int,
     drawn = manifest.exists() and json.loads(manifest.read_text()).get("identity") == identity
     if drawn and all((out / n).exists() for n in names.values()):
         return names
-    samples, futures = LEARNED[technique]
+    samples, futures = find_technique(technique).samples, find_technique(technique).futures
     curves = {}
     for model, folder in models.items():
         curves[f"{model}, {technique}"] = errors_by_horizon(

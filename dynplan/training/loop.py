@@ -22,7 +22,7 @@ from pydantic import Field, field_validator
 
 from dynplan.config import Config
 from dynplan.files import write_bytes_atomic
-from dynplan.training import checkpoint
+from dynplan.models import checkpoint
 
 
 class TrainBudget(Config):

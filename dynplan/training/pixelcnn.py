@@ -17,14 +17,14 @@ import torch
 import zarr
 
 from dynplan.data.datasets import CONTEXT, WindowDataset
+from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
-from dynplan.training import checkpoint, loop
+from dynplan.training import loop
 from dynplan.training.loop import TrainBudget
-from dynplan.training.vqvae import load_vqvae_checkpoint
 
-KIND = "pixelcnn"
+KIND = PIXELCNN_KIND
 #: Part of a training run's cache key; bump it when a change would change what training produces.
 CODE_VERSION = "pixelcnn-1"
 
@@ -123,11 +123,3 @@ def _validation(store: str, codes: str, n: int) -> tuple[torch.Tensor, torch.Ten
     frames = np.stack([frames_array[int(val.episodes[i // val.per_episode]), i % val.per_episode + CONTEXT]
                        for i in picks])  # fmt: skip
     return torch.stack(contexts).long(), torch.stack(targets).long(), frames
-
-
-def load_pixelcnn_checkpoint(path: str | os.PathLike, config: PixelCNNConfig | None = None) -> ConditionalPixelCNN:
-    """A PixelCNN prior from a checkpoint (final or latest); with `config`, it must be the one trained."""
-    state = checkpoint.load(path, KIND, None if config is None else config.model_dump())
-    model = ConditionalPixelCNN(PixelCNNConfig(**state["config"]))
-    model.load_state_dict(state["model"])
-    return model.eval()

@@ -17,12 +17,13 @@ import torch
 
 from dynplan.data.datasets import FrameDataset
 from dynplan.data.patches import distinct_patches
+from dynplan.models.checkpoint import VQVAE_KIND
 from dynplan.models.metrics import frame_errors
 from dynplan.models.vqvae import SHARPNESS_GRID, VQVAE, VQVAEConfig
-from dynplan.training import checkpoint, loop
+from dynplan.training import loop
 from dynplan.training.loop import TrainBudget
 
-KIND = "vqvae"
+KIND = VQVAE_KIND
 #: Part of a training run's cache key. Bump it whenever a change to the model, likelihood, quantizer or this
 #: loop would change what training produces; edits that do not (docs, names) keep runs resumable.
 CODE_VERSION = "vqvae-1"
@@ -210,11 +211,3 @@ def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndar
         return metrics
 
     return step, epoch_end
-
-
-def load_vqvae_checkpoint(path: str | os.PathLike, config: VQVAEConfig | None = None) -> VQVAE:
-    """A VQ-VAE from a checkpoint (final or latest); with `config`, it must be the one trained."""
-    state = checkpoint.load(path, KIND, None if config is None else config.model_dump())
-    model = VQVAE(VQVAEConfig(**state["config"]))
-    model.load_state_dict(state["model"])
-    return model.eval()

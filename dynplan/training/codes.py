@@ -9,7 +9,6 @@ or a frames store whose earlier episodes changed, re-encodes everything.
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import os
 import warnings
@@ -21,14 +20,12 @@ import torch
 import zarr
 
 from dynplan.data.store import committed_checksums, sha256_file
+from dynplan.models.checkpoint import VQVAE_KIND, cached
 from dynplan.progress import progress
 
 
-@functools.lru_cache(maxsize=4)
 def _model(checkpoint: str):
-    from dynplan.training.vqvae import load_vqvae_checkpoint
-
-    return load_vqvae_checkpoint(checkpoint)
+    return cached(VQVAE_KIND, checkpoint)
 
 
 def _encode_block(block: np.ndarray, checkpoint: str) -> np.ndarray:

@@ -1,0 +1,89 @@
+"""The world-model configurations, one entry each: tokenizer, prior, caution, training budgets and weights.
+
+A configuration names everything that makes one learned world model: the VQ-VAE tokenizer's config, the
+PixelCNN prior's, the caution of the frames the planner sees, the training budgets its committed weights were
+trained with (fields of `dynplan.training.loop.TrainBudget`) and the names of those weights under
+`dynplan/models/weights/`. Every command, preset and loader looks a configuration up here, so adding one is one
+`register_world_model` call (docs/extending.md). `paper` is the paper's (docs/protocol.md §2); `default` is ours.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from dynplan.models.caution import Caution
+from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
+from dynplan.models.vqvae import PRESETS, VQVAEConfig
+
+STAGES = ("vqvae", "pixelcnn")
+
+
+@dataclass(frozen=True)
+class WorldModelSpec:
+    """One world-model configuration. `weights`: stage → file name under `dynplan/models/weights/` (absent: no
+    committed weights; train them or pass a folder); `budgets`: stage → TrainBudget fields of its training."""
+
+    name: str
+    tokenizer: VQVAEConfig
+    prior: PixelCNNConfig
+    caution: Caution = field(default_factory=Caution)
+    budgets: Mapping[str, Mapping] = field(default_factory=dict)
+    weights: Mapping[str, str] = field(default_factory=dict)
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if self.prior.codebook_size != self.tokenizer.codebook_size:
+            raise ValueError(f"world model {self.name!r}: the prior's codebook_size {self.prior.codebook_size} is not "
+                             f"the tokenizer's {self.tokenizer.codebook_size}")  # fmt: skip
+        if self.caution.occupancy and not self.tokenizer.local:
+            raise ValueError(f"world model {self.name!r}: occupancy needs patch-local codes (tokenizer local=True)")
+        unknown = (set(self.budgets) | set(self.weights)) - set(STAGES)
+        if unknown:
+            raise ValueError(f"world model {self.name!r}: unknown stages {sorted(unknown)}; stages are {STAGES}")
+
+
+#: name → configuration.
+WORLD_MODELS: dict[str, WorldModelSpec] = {}
+
+
+def register_world_model(spec: WorldModelSpec, replace: bool = False) -> WorldModelSpec:
+    """Add a configuration; an existing name is refused unless `replace`."""
+    if spec.name in WORLD_MODELS and not replace:
+        raise ValueError(f"world model {spec.name!r} is registered already")
+    WORLD_MODELS[spec.name] = spec
+    return spec
+
+
+def world_model_spec(name: str) -> WorldModelSpec:
+    """The configuration called `name` (a ValueError naming the known ones otherwise)."""
+    try:
+        return WORLD_MODELS[name]
+    except KeyError:
+        raise ValueError(f"model must be one of {sorted(WORLD_MODELS)}, got {name!r}") from None
+
+
+def caution_for(model: str, overrides: Mapping[str, float] | None = None) -> Caution:
+    """Configuration `model`'s own caution with `overrides` (field → value, e.g. from the command line) applied;
+    an unknown configuration has none of its own."""
+    own = WORLD_MODELS[model].caution if model in WORLD_MODELS else Caution()
+    return Caution(**{**own.model_dump(), **(overrides or {})})
+
+
+register_world_model(WorldModelSpec(
+    "paper", PRESETS["paper"], PIXELCNN_PRESETS["paper"], Caution(),
+    budgets={"vqvae": {"epochs": 200, "steps_per_epoch": 200, "threads": 1},
+             "pixelcnn": {"epochs": 100, "steps_per_epoch": 500, "threads": 1}},
+    weights={"vqvae": "vqvae-paper.pt", "pixelcnn": "pixelcnn-paper.pt"},
+    description="the paper's: 6 × 6 codes from 512, DMoL decoder, 64 × 8 prior; plans on the argmax alone",
+))  # fmt: skip
+register_world_model(WorldModelSpec(
+    "default", PRESETS["default"], PIXELCNN_PRESETS["default"],
+    # chosen on validation episodes, never the evaluation's (docs/design.md, occupancy and the lane margin)
+    Caution(occupancy=0.1, margin=1),
+    budgets={"vqvae": {"epochs": 8, "steps_per_epoch": 1000},
+             "pixelcnn": {"epochs": 100, "steps_per_epoch": 500, "threads": 1}},
+    weights={"vqvae": "vqvae-default.pt", "pixelcnn": "pixelcnn-default.pt"},
+    description="ours: 12 × 12 patch-local codes from 4096, calibrated categorical decoder, 32 × 8 prior, "
+                "occupancy 0.1 and a one-pixel lane margin",
+))  # fmt: skip

@@ -1,0 +1,57 @@
+"""The library's layers: no module imports a higher layer, at module level or inside a function, and the
+library never imports the flows. The order: the root helpers → env and rendering → logs → data and planning →
+models → training → evaluation → analysis, benchmarks, demo → pipeline."""
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "dynplan"
+#: Subpackage (or top-level module) → layer; a module may import its own layer and those below.
+LAYERS = {
+    "config": 0, "files": 0, "progress": 0, "version": 0,
+    "env": 1, "render": 1,
+    "logs": 2,
+    "data": 3, "planning": 3,
+    "models": 4,
+    "training": 5,
+    "evaluation": 6,
+    "analysis": 7, "bench": 7, "demo": 7,
+    "pipeline": 8,
+}  # fmt: skip
+
+
+def _imports(path: Path) -> list[tuple[int, str]]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found += [(node.lineno, node.module)] + [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
+        elif isinstance(node, ast.Import):
+            found += [(node.lineno, a.name) for a in node.names]
+    return found
+
+
+def _layer(module: str) -> int | None:
+    parts = module.split(".")
+    return LAYERS.get(parts[1]) if parts[0] == "dynplan" and len(parts) > 1 else None
+
+
+def test_every_part_of_the_package_has_a_layer():
+    parts = {p.stem if p.is_file() else p.name for p in PACKAGE.iterdir() if p.suffix == ".py" or p.is_dir()}
+    assert parts - {"__init__", "__pycache__", "weights"} <= set(LAYERS), sorted(parts - set(LAYERS))
+
+
+def test_no_module_imports_a_higher_layer_or_the_flows():
+    wrong = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        relative = path.relative_to(PACKAGE.parent)
+        if relative == Path("dynplan/__init__.py"):
+            continue  # the package's front door re-exports from any layer
+        own = LAYERS[relative.parts[1].removesuffix(".py")]
+        for line, module in _imports(path):
+            if module.split(".")[0] == "flows":
+                wrong.append(f"{relative}:{line} imports {module} (the library never imports the flows)")
+            elif module == "dynplan":
+                wrong.append(f"{relative}:{line} imports the package front door; import the module instead")
+            elif (layer := _layer(module)) is not None and layer > own:
+                wrong.append(f"{relative}:{line} ({relative.parts[1]}, layer {own}) imports {module} (layer {layer})")
+    assert not wrong, "\n".join(wrong)
