@@ -41,6 +41,15 @@ def valid_range(field: FieldInfo) -> str:
     return f"{left}{'-inf' if lo is None else lo}, {'inf' if hi is None else hi}{right}"
 
 
+def field_help(cls: type[BaseModel], name: str, default: str | None = None) -> str:
+    """A command-line help text from a config field: its description, valid range and default (`default`
+    overrides how the default is told, e.g. "each configuration's own")."""
+    field = cls.model_fields[name]
+    rng = valid_range(field)
+    told = default if default is not None else repr(field.default)
+    return f"{field.description or name}" + (f"; valid range {rng}" if rng else "") + f" (default: {told})"
+
+
 def describe(cls: type[BaseModel], error: ValidationError) -> str:
     """Turn a pydantic ValidationError into one readable sentence per problem."""
     problems = []

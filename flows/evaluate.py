@@ -23,7 +23,7 @@ from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.config import ConfigError
+from dynplan.config import ConfigError, field_help
 from dynplan.data.collect import CollectPlan
 from dynplan.env.config import RoadConfig
 from dynplan.evaluation.protocol import (
@@ -42,7 +42,7 @@ from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
-from dynplan.models.registry import WORLD_MODELS
+from dynplan.models.registry import WORLD_MODELS, world_model_spec
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
 from flows.collect import collect_episodes
@@ -116,10 +116,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
         + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model)
         + ")",
     )
-    parser.add_argument("--agent-speeds", nargs="+", type=float, default=list(AGENT_SPEEDS))
-    parser.add_argument("--rollout-steps", nargs="+", type=int, default=list(ROLLOUT_STEPS))
-    parser.add_argument("--episodes", type=int, default=EVAL_EPISODES, help="evaluation episodes (default 100)")
-    parser.add_argument("--playouts", type=int, default=100, help="MCTS playouts per decision (default 100)")
+    parser.add_argument("--agent-speeds", nargs="+", type=float, default=list(AGENT_SPEEDS),
+                        help=field_help(RoadConfig, "agent_speed", " ".join(map(str, AGENT_SPEEDS))))  # fmt: skip
+    parser.add_argument("--rollout-steps", nargs="+", type=int, default=list(ROLLOUT_STEPS),
+                        help=field_help(MCTSConfig, "rollout_steps", " ".join(map(str, ROLLOUT_STEPS))))  # fmt: skip
+    parser.add_argument("--episodes", type=int, default=EVAL_EPISODES,
+                        help=field_help(CollectPlan, "episodes", str(EVAL_EPISODES)))  # fmt: skip
+    parser.add_argument("--playouts", type=int, default=100, help=field_help(MCTSConfig, "playouts", "100"))
     parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
     parser.add_argument("--results-dir", default=RESULTS_DIR, help="the results store (runs and Table 1)")
     parser.add_argument("--run", default=EVALUATION_RUN, help=f"the run to play into (default {EVALUATION_RUN!r}, "
@@ -130,22 +133,19 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
                         help=f"seed of the first episode (default {EVAL_SEED_START:,}, the evaluation's; "
                         f"{VALIDATION_SEED_START:,}: the validation episodes)")  # fmt: skip
-    parser.add_argument(
-        "--occupancy",
-        type=float,
-        help="the learned models' occupancy threshold in [0, 1) (0: off; default: each configuration's own)",
-    )
-    parser.add_argument("--margin", type=int, help="pixels the learned models widen each predicted obstacle by "
-                        "along its lane, in [0, 4] (0: off; default: each configuration's own)")  # fmt: skip
+    for name, kind in (("occupancy", float), ("margin", int)):  # the caution's fields, ranges and words
+        parser.add_argument(f"--{name}", type=kind, help=field_help(Caution, name, "each configuration's own"))
     parser.add_argument("--workers", type=int, help="episodes played at once locally (default: one per core)")
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     args = parser.parse_args(argv)
-    try:  # the configs' own validation, before any flow machinery starts
+    overrides = {name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None}
+    try:  # the configs' own validation, before any flow machinery starts: one source for every range
         for speed in args.agent_speeds:
             RoadConfig(agent_speed=speed)
         for k in args.rollout_steps:
             MCTSConfig(rollout_steps=k, playouts=args.playouts)
         CollectPlan(episodes=args.episodes, seed=args.first_seed)
+        Caution(**overrides)
     except ConfigError as error:
         parser.error(str(error))
     try:
@@ -155,12 +155,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.first_seed != EVAL_SEED_START and args.run == EVALUATION_RUN:
         parser.error(f"--first-seed={args.first_seed} needs its own --run: the run {EVALUATION_RUN!r} holds the "
                      f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
-    if args.occupancy is not None and not 0.0 <= args.occupancy < 1.0:
-        parser.error(f"--occupancy={args.occupancy} is invalid; valid range [0, 1)")
-    if args.margin is not None and not 0 <= args.margin <= 4:
-        parser.error(f"--margin={args.margin} is invalid; valid range [0, 4]")
-    if args.occupancy and "paper" in args.models and any(TECHNIQUES[t].world_model for t in args.techniques):
-        parser.error("--occupancy needs patch-local codes; the paper configuration's tokenizer has none")
+    if args.occupancy and any(TECHNIQUES[t].world_model for t in args.techniques):
+        for model in args.models:
+            if not world_model_spec(model).tokenizer.local:
+                parser.error(f"--occupancy needs patch-local codes; the {model} configuration's tokenizer has none")
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
@@ -172,7 +170,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
-        caution={name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None} or None,
+        caution=overrides or None,
         run=args.run,
     )  # fmt: skip
     if args.json:

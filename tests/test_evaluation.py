@@ -253,8 +253,14 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--occupancy", "1.5"], "--occupancy=1.5 is invalid; valid range [0, 1)"),
-        (["--margin", "5"], "--margin=5 is invalid; valid range [0, 4]"),
+        (
+            ["--occupancy", "1.5"],
+            "Caution: occupancy=1.5 is invalid (input should be less than 1); valid range [0.0, 1.0)",
+        ),
+        (
+            ["--margin", "5"],
+            "Caution: margin=5 is invalid (input should be less than or equal to 4); valid range [0, 4]",
+        ),
         (["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"], "--occupancy needs patch-local codes"),
         (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --run"),
         (["--run", "../x"], "--run: run name '../x' is invalid"),

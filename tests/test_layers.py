@@ -1,6 +1,6 @@
 """The library's layers: no module imports a higher layer, at module level or inside a function, and the
 library never imports the flows. The order: the root helpers → env and rendering → logs → data and planning →
-models → training → evaluation → analysis, benchmarks, demo → pipeline."""
+models → training → evaluation → analysis and benchmarks → pipeline."""
 
 import ast
 from pathlib import Path
@@ -15,7 +15,7 @@ LAYERS = {
     "models": 4,
     "training": 5,
     "evaluation": 6,
-    "analysis": 7, "bench": 7, "demo": 7,
+    "analysis": 7, "bench": 7,
     "pipeline": 8,
 }  # fmt: skip
 

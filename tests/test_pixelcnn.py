@@ -161,6 +161,24 @@ def test_fast_generation_equals_the_naive_reference(seed, K, grid, batch):
     assert torch.equal(fast, naive)
 
 
+def test_the_kernels_weights_are_named_as_the_kernel_takes_them_and_follow_the_model():
+    import inspect
+
+    from dynplan.models.generation import KernelWeights, _generate_grid, generate_fast, kernel_weights
+
+    params = list(inspect.signature(_generate_grid.py_func).parameters)
+    assert params[:4] == ["cond_v", "cond_h", "temperature", "uniforms"] and params[4:] == list(KernelWeights._fields)
+    torch.manual_seed(0)
+    model = ConditionalPixelCNN(SMALL.model_copy(update={"codebook_size": 16})).eval()
+    context = torch.randint(0, 16, (2, 4, 6, 6))
+    kept = kernel_weights(model)
+    assert torch.equal(generate_fast(model, context, weights=kept), generate_fast(model, context))
+    with torch.no_grad():
+        for p in model.parameters():
+            p.mul_(3.0)
+    assert torch.equal(generate_fast(model, context), model.generate_naive(context))  # laid out anew each call
+
+
 def test_learning_rate_halves_every_halflife_and_is_constant_without_one():
     from dynplan.training.pixelcnn import learning_rate
 

@@ -110,7 +110,7 @@ def test_occupancy_is_the_priors_obstacle_probability_along_the_greedy_future(ti
 
 
 def test_occupancy_names_its_range_and_needs_patch_local_codes(tiny_model, tiny_local_model):
-    with pytest.raises(ValueError, match=r"occupancy must be in \[0, 1\)"):
+    with pytest.raises(ValueError, match=r"occupancy=.* is invalid .*valid range \[0.0, 1.0\)"):
         LearnedWorldModel(*tiny_local_model, occupancy=1.0)
     with pytest.raises(ValueError, match="occupancy needs a tokenizer with patch-local codes"):
         LearnedWorldModel(*tiny_model, occupancy=0.1)
@@ -141,7 +141,7 @@ def test_margin_widens_the_planners_frames_and_names_its_range(tiny_model):
     model = LearnedWorldModel(tokenizer, prior, samples=2, seed=3, margin=1)
     np.testing.assert_array_equal(model.predict(frames, 2).frames, widen_obstacles(plain, 1))
     assert model.name == "model(samples=2, futures=0, margin=1)"
-    with pytest.raises(ValueError, match=r"margin must be in \[0, 4\] pixels"):
+    with pytest.raises(ValueError, match=r"margin=.* is invalid .*valid range \[0, 4\]"):
         LearnedWorldModel(tokenizer, prior, margin=5)
 
 

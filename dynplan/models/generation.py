@@ -16,6 +16,8 @@ the tests check does not change a choice.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numba
 import numpy as np
 import torch
@@ -23,13 +25,47 @@ import torch
 from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
 
 
+class KernelWeights(NamedTuple):
+    """A prior's weights laid out for the compiled generation (`_generate_grid`), built once per model by
+    `kernel_weights`. L layers, T taps, C channels (2C gated), K codes.
+
+    v_offsets (L, T, 2) int64, v_weight (L, T, C, 2C), v_taps (L,): each layer's vertical taps — (row, column)
+    offsets from the output, weights, how many are real (the rest pad); v_bias (L, 2C); v2h_weight (L, 2C, 2C),
+    v2h_bias (L, 2C): the vertical stack's 1 × 1 link into the horizontal one; h_offsets (L, T), h_weight
+    (L, T, C, 2C), h_taps (L,), h_bias (L, 2C): horizontal taps (column offsets); out_weight (L, C, C), out_bias
+    (L, C): each layer's 1 × 1 output; residual (L,) bool; w1 (C, hidden), b1, w2 (hidden, K), b2: the head;
+    embed (K, C): the code embedding that feeds generated codes back in.
+    """
+
+    v_offsets: np.ndarray
+    v_weight: np.ndarray
+    v_taps: np.ndarray
+    v_bias: np.ndarray
+    v2h_weight: np.ndarray
+    v2h_bias: np.ndarray
+    h_offsets: np.ndarray
+    h_weight: np.ndarray
+    h_taps: np.ndarray
+    h_bias: np.ndarray
+    out_weight: np.ndarray
+    out_bias: np.ndarray
+    residual: np.ndarray
+    w1: np.ndarray
+    b1: np.ndarray
+    w2: np.ndarray
+    b2: np.ndarray
+    embed: np.ndarray
+
+
 @torch.inference_mode()
 def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature: float = 0.0,
-                  generator: torch.Generator | None = None) -> torch.Tensor:  # fmt: skip
+                  generator: torch.Generator | None = None,
+                  weights: KernelWeights | None = None) -> torch.Tensor:  # fmt: skip
     """The next code grid given `context` (B, 4, h, w): greedy if `temperature` is 0, else sampled.
 
     Same contract as `generate_naive` (the same codes, drawing the same random numbers), at a fraction of the
-    cost."""
+    cost. `weights`: the model's `kernel_weights`, when the caller keeps them (a frozen model generating many
+    grids); else they are laid out for this call."""
     B, _, H, W = context.shape
     uniforms = draw_uniforms(B, H, W, temperature, generator)
     condition = model.condition(context)
@@ -38,8 +74,9 @@ def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature
     def channels_last(parts) -> np.ndarray:  # (L, B, 2C, h, w) → (L, B, h, w, 2C)
         return np.ascontiguousarray(torch.stack(parts).permute(0, 1, 3, 4, 2).numpy(), dtype=np.float32)
 
+    weights = kernel_weights(model) if weights is None else weights
     codes = _generate_grid(channels_last(cond_v), channels_last(cond_h), float(temperature), uniforms.numpy(),
-                           *_compiled_weights(model))  # fmt: skip
+                           *weights)  # fmt: skip
     return torch.from_numpy(codes)
 
 
@@ -67,12 +104,10 @@ def _stack(arrays: list[np.ndarray]) -> np.ndarray:
     return np.ascontiguousarray(out)
 
 
-def _compiled_weights(model: ConditionalPixelCNN) -> tuple[np.ndarray, ...]:
-    """The network's weights laid out for `_greedy_grid`, cached on the model until a parameter changes."""
-    version = tuple((id(p), p._version) for p in model.parameters())
-    cached = getattr(model, "_greedy_weights", None)
-    if cached is not None and cached[0] == version:
-        return cached[1]
+@torch.inference_mode()
+def kernel_weights(model: ConditionalPixelCNN) -> KernelWeights:
+    """`model`'s weights laid out for the compiled generation, as they are now (build them again after the
+    parameters change)."""
     layers, head = list(model.layers), list(model.head)
     v_taps = [_taps(layer.vertical.weight, layer.mask == "A") for layer in layers]
     h_taps = [_taps(layer.horizontal.weight, layer.mask == "A") for layer in layers]
@@ -83,7 +118,7 @@ def _compiled_weights(model: ConditionalPixelCNN) -> tuple[np.ndarray, ...]:
     def transposed(convs) -> np.ndarray:  # 1 × 1 convolutions → (L, C_in, C_out)
         return array(torch.stack([conv.weight[:, :, 0, 0].T for conv in convs]))
 
-    weights = (
+    return KernelWeights(
         _stack([offsets for offsets, _ in v_taps]),
         _stack([w for _, w in v_taps]).astype(np.float32),
         np.array([len(offsets) for offsets, _ in v_taps], np.int64),
@@ -103,8 +138,6 @@ def _compiled_weights(model: ConditionalPixelCNN) -> tuple[np.ndarray, ...]:
         array(head[3].bias),
         array(model.embed.weight),
     )
-    model._greedy_weights = (version, weights)
-    return weights
 
 
 @numba.njit(cache=True, inline="always")

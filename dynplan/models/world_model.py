@@ -30,8 +30,9 @@ import torch
 
 from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models import checkpoint
+from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError, pretrained_path
-from dynplan.models.generation import generate_fast
+from dynplan.models.generation import generate_fast, kernel_weights
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import caution_for
 from dynplan.models.vqvae import VQVAE
@@ -81,10 +82,7 @@ class LearnedWorldModel:
                              f"{tokenizer.config.codebook_size}")  # fmt: skip
         if samples < 0 or futures < 0:
             raise ValueError(f"samples and futures must be >= 0, got {samples}, {futures}")
-        if not 0.0 <= occupancy < 1.0:
-            raise ValueError(f"occupancy must be in [0, 1) (0: off), got {occupancy}")
-        if not 0 <= margin <= 4:
-            raise ValueError(f"margin must be in [0, 4] pixels (0: off), got {margin}")
+        Caution(occupancy=occupancy, margin=margin)  # the ranges' one home; a bad value is a ConfigError naming it
         if occupancy and not (tokenizer.config.local and tokenizer.config.n_codebooks == 1):
             raise ValueError("occupancy needs a tokenizer with patch-local codes (local=True, n_codebooks=1), "
                              f"got {tokenizer.config.name!r}")  # fmt: skip
@@ -96,6 +94,7 @@ class LearnedWorldModel:
             f"model(samples={samples}, futures={futures}" + "".join(f", {k}={v}" for k, v in caution.items() if v) + ")"
         )
         self.context = prior.config.context
+        self._kernel = kernel_weights(self.prior)  # the prior is frozen here: lay its weights out once
         self._code_obstacles: torch.Tensor | None = None
 
     @torch.inference_mode()
@@ -143,7 +142,7 @@ class LearnedWorldModel:
         context = context[None].expand(futures, -1, -1, -1)
         grids = []
         for _ in range(k):
-            grid = generate_fast(self.prior, context, temperature, self.generator)  # (futures, h, w)
+            grid = generate_fast(self.prior, context, temperature, self.generator, self._kernel)  # (futures, h, w)
             grids.append(grid)
             context = torch.cat([context[:, 1:], grid[:, None]], dim=1)
         return torch.stack(grids, dim=1)

@@ -1,45 +1,13 @@
-"""The demo episode (library and `python -m flows.demo`) and the benchmark command line."""
+"""The benchmarks' command line and a few benchmarks run small."""
 
 import json
-import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from PIL import Image
-
-from dynplan.demo import run_demo
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def test_run_demo_writes_a_gif_of_the_whole_episode(tmp_path):
-    result = run_demo(tmp_path, seed=1)
-    assert result.outcome in {"goal", "death", "timeout"}
-    assert result.total_reward == {"goal": 20.0, "death": -20.0, "timeout": 0.0}[result.outcome]
-    gif = Image.open(result.gif)
-    assert gif.n_frames == result.steps + 1
-    assert gif.size == (48 * 6, 48 * 6)
-    assert not list(tmp_path.glob("*.tmp"))  # written atomically
-
-
-def test_lookahead_agent_usually_reaches_the_goal(tmp_path):
-    outcomes = [run_demo(tmp_path, seed=s).outcome for s in range(10)]
-    assert outcomes.count("goal") >= 7
-
-
-@pytest.mark.slow
-def test_main_command_runs_the_prefect_flow(tmp_path):
-    proc = subprocess.run(
-        [sys.executable, "-m", "flows.demo", "--out", str(tmp_path), "--seed", "2", "--json"],
-        cwd=ROOT, capture_output=True, text=True, timeout=300,
-        env={**os.environ, "PREFECT_HOME": str(tmp_path / "prefect")},
-    )  # fmt: skip
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert Path(result["gif"]).is_file()
-    assert "Finished in state Completed" in proc.stderr + proc.stdout
 
 
 def test_bench_world_prints_case_figure_values():
