@@ -32,7 +32,7 @@ from prefect.cache_policies import NO_CACHE
 
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
-from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.table import aggregate, load_results
 from dynplan.files import atomic_path, write_bytes_atomic
 from dynplan.models import checkpoint as checkpoints

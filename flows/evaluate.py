@@ -26,18 +26,17 @@ from prefect.futures import as_completed
 from dynplan.config import ConfigError, field_help
 from dynplan.data.collect import CollectPlan
 from dynplan.env.config import RoadConfig
-from dynplan.evaluation.protocol import (
+from dynplan.evaluation.cases import (
     AGENT_SPEEDS,
     EVAL_EPISODES,
     EVAL_SEED_START,
     ROLLOUT_STEPS,
     VALIDATION_SEED_START,
     Case,
-    begin_run,
     cases,
-    pending,
-    run_case,
 )
+from dynplan.evaluation.protocol import pending, run_case
+from dynplan.evaluation.provenance import begin_run
 from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.evaluation.techniques import TECHNIQUES

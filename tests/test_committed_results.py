@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from dynplan.evaluation.protocol import world_model_entry
+from dynplan.evaluation.provenance import world_model_entry
 from dynplan.evaluation.results import results_page
 from dynplan.evaluation.store import ROLES, Run, expected_provenance, runs
 from dynplan.evaluation.table import aggregate, load_results, render_markdown
@@ -111,7 +111,8 @@ def test_replaying_committed_rows_reproduces_their_outcomes(tmp_path):
     """The committed evaluation replays exactly: same outcome and steps for the same case, log, weights and
     caution (what any refactor of the planner, the world model or the protocol must keep)."""
     from dynplan.data.collect import record_episode
-    from dynplan.evaluation.protocol import EVAL_SEED_START, Case, run_case
+    from dynplan.evaluation.cases import EVAL_SEED_START, Case
+    from dynplan.evaluation.protocol import run_case
 
     seeds = [EVAL_SEED_START, EVAL_SEED_START + 1]
     for seed in seeds:

@@ -7,7 +7,9 @@ import pytest
 
 from dynplan.analysis.deaths import CAUSES, classify_death, main, replay_death
 from dynplan.data.collect import record_episode
-from dynplan.evaluation.protocol import EVAL_SEED_START, Case, begin_run, run_case
+from dynplan.evaluation.cases import EVAL_SEED_START, Case
+from dynplan.evaluation.protocol import run_case
+from dynplan.evaluation.provenance import begin_run
 from dynplan.evaluation.store import Run
 
 SEDAN = 144

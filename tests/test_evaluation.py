@@ -11,7 +11,8 @@ from PIL import Image
 
 from dynplan.config import ConfigError
 from dynplan.data.collect import log_path, record_episode
-from dynplan.evaluation.protocol import EVAL_SEED_START, Case, cases, pending, run_case
+from dynplan.evaluation.cases import EVAL_SEED_START, Case, cases
+from dynplan.evaluation.protocol import pending, run_case
 from dynplan.evaluation.replay import replay
 from dynplan.evaluation.store import Run
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from dynplan.data.collect import log_path, record_episode
-from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.replay import replay
 from dynplan.evaluation.table import render_markdown
 from dynplan.evaluation.techniques import TECHNIQUES, Technique, register_technique

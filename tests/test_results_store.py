@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from dynplan.data.collect import record_episode
+from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.legacy import import_folder
-from dynplan.evaluation.protocol import EVAL_SEED_START
 from dynplan.evaluation.store import Run, StoreError, TornRowWarning, evaluation_rows
 from dynplan.evaluation.table import aggregate
 

@@ -296,7 +296,7 @@ def test_checkpoints_hold_cpu_tensors_whatever_the_device(tmp_path, store):
     ("model", "grid", "max_fn", "min_goals"), [("default", 12, 0.01, 0.95), ("paper", 6, 0.35, 0.3)]
 )
 def test_committed_weights_reconstruct_held_out_frames(model, grid, max_fn, min_goals):
-    from dynplan.evaluation.protocol import EVAL_SEED_START
+    from dynplan.evaluation.cases import EVAL_SEED_START
     from dynplan.models import load_vqvae
     from dynplan.models.metrics import frame_errors
 

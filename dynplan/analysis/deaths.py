@@ -24,8 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynplan.data.collect import log_path
 from dynplan.env.config import FREE, GOAL_VALUE
-from dynplan.evaluation.protocol import ROLLOUT_STEPS, Case, case_agent, log_path
+from dynplan.evaluation.cases import ROLLOUT_STEPS, Case
+from dynplan.evaluation.protocol import case_agent
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import read_episode_log

@@ -20,7 +20,7 @@ import numpy as np
 
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.models.metrics import frame_errors
 from dynplan.planning.forward import ForwardModel, goal_centres
 
@@ -104,15 +104,13 @@ def world_model(model: str, samples: int = 0, futures: int = 0, prior: str | Non
                 caution: dict[str, float] | None = None) -> ForwardModel:  # fmt: skip
     """The committed world model of configuration `model`, or its tokenizer with the prior checkpoint `prior`;
     `caution`: what overrides the configuration's own (field → value)."""
-    from dynplan.models import pretrained_path
-    from dynplan.models.checkpoint import load_pixelcnn_checkpoint, load_vqvae_checkpoint
     from dynplan.models.registry import caution_for
-    from dynplan.models.world_model import LearnedWorldModel, load_world_model
+    from dynplan.models.world_model import LearnedWorldModel, load_world_model, world_model_parts, world_model_paths
 
     if prior is None:
         return load_world_model(model=model, samples=samples, futures=futures, caution=caution)
-    tokenizer = load_vqvae_checkpoint(pretrained_path("vqvae", model))
-    return LearnedWorldModel(tokenizer, load_pixelcnn_checkpoint(prior), samples=samples, futures=futures,
+    tokenizer, prior_model = world_model_parts((world_model_paths(model)[0], prior), model)
+    return LearnedWorldModel(tokenizer, prior_model, samples=samples, futures=futures,
                              **caution_for(model, caution).model_dump())  # fmt: skip
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.evaluation.protocol import EVAL_SEED_START, Case
+from dynplan.evaluation.cases import EVAL_SEED_START, Case
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel
 from dynplan.planning.mcts import PAPER_PRIOR, MCTSConfig, MCTSPlanner

@@ -14,8 +14,8 @@ import torch
 
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.evaluation.protocol import EVAL_SEED_START
-from dynplan.models.checkpoint import load_vqvae_checkpoint
+from dynplan.evaluation.cases import EVAL_SEED_START
+from dynplan.models.checkpoint import VQVAE_KIND, cached
 from dynplan.models.metrics import frame_errors
 from dynplan.models.world_model import merge_samples
 
@@ -24,7 +24,7 @@ def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20, samples: 
     """Mid-point reconstruction errors and code use over `episodes` evaluation episodes (407 frames each), and the
     errors of the frames the planner's *N samples* variant sees: the mid-point merged with `samples` decoder
     samples (obstacles: union; goal: median)."""
-    model = load_vqvae_checkpoint(checkpoint)
+    model = cached(VQVAE_KIND, checkpoint)
     frames = np.concatenate([generate_world(RoadConfig(agent_speed=0.5), EVAL_SEED_START + i).frames
                              for i in range(episodes)])  # fmt: skip
     generator = torch.Generator().manual_seed(0)

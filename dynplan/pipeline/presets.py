@@ -17,7 +17,7 @@ from typing import Any, Literal
 from pydantic import Field, model_validator
 
 from dynplan.config import Config
-from dynplan.evaluation.protocol import AGENT_SPEEDS, ROLLOUT_STEPS
+from dynplan.evaluation.cases import AGENT_SPEEDS, ROLLOUT_STEPS
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.pixelcnn import PixelCNNConfig
 from dynplan.models.registry import WORLD_MODELS, world_model_spec

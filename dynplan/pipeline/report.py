@@ -15,7 +15,7 @@ from pathlib import Path
 
 from dynplan.data.collect import log_path
 from dynplan.data.store import sha256_file
-from dynplan.evaluation.protocol import EVAL_SEED_START
+from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.table import render_markdown
 from dynplan.evaluation.techniques import technique as find_technique
 from dynplan.files import atomic_path, write_bytes_atomic

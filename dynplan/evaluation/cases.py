@@ -1,0 +1,64 @@
+"""The cases of an evaluation (docs/protocol.md §4): which episodes, speeds, horizons and techniques, one `Case` per
+played episode, and the seed ranges that keep evaluation and validation apart."""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass
+
+from dynplan.evaluation.techniques import technique
+from dynplan.models.registry import WORLD_MODELS
+
+#: The evaluation episodes' seeds: a range of their own, far from training seeds (which start at 0).
+EVAL_SEED_START = 1_000_000
+#: Validation episodes: where a world model's settings (prior epoch, occupancy threshold) are chosen, so that the
+#: evaluation episodes only ever score a choice already made.
+VALIDATION_SEED_START = 2_000_000
+EVAL_EPISODES = 100
+AGENT_SPEEDS = (1.0, 0.5)
+ROLLOUT_STEPS = (1, 3, 5, 10)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One evaluation episode. `rollout_steps` is None for the random agent, which does not search."""
+
+    technique: str
+    agent_speed: float
+    rollout_steps: int | None
+    seed: int
+    model: str | None = None  # the world-model configuration of a learned technique ("default" or "paper")
+
+    def __post_init__(self) -> None:
+        needs = technique(self.technique).world_model
+        if needs != (self.model is not None):
+            uses = "needs a world model" if needs else "does not use a world model"
+            raise ValueError(f"technique {self.technique!r} {uses} (got model={self.model!r})")
+        if self.model is not None and self.model not in WORLD_MODELS:
+            raise ValueError(f"model must be one of {sorted(WORLD_MODELS)}, got {self.model!r}")
+
+    @property
+    def group(self) -> str:
+        k = "none" if self.rollout_steps is None else self.rollout_steps
+        technique = self.technique if self.model is None else f"{self.technique}-{self.model}"
+        return f"{technique}/speed{self.agent_speed:g}_k{k}"
+
+    def planner_seed(self) -> int:
+        """A seed for the planner's own randomness, fixed per case."""
+        return zlib.crc32(f"{self.group}/{self.seed}".encode())
+
+
+def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
+          rollout_steps: tuple[int, ...] = ROLLOUT_STEPS, episodes: int = EVAL_EPISODES,
+          first_seed: int = EVAL_SEED_START, models: tuple[str, ...] = ("default",)) -> list[Case]:  # fmt: skip
+    """Every case of the table: the random agent once per speed, searching techniques once per horizon, learned
+    techniques once per world-model configuration in `models`."""
+    out = []
+    for name in techniques:
+        t = technique(name)
+        ks: tuple[int | None, ...] = rollout_steps if t.search else (None,)
+        for model in models if t.world_model else (None,):
+            for speed in speeds:
+                for k in ks:
+                    out += [Case(name, speed, k, first_seed + i, model) for i in range(episodes)]
+    return out

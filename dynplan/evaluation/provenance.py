@@ -1,0 +1,51 @@
+"""What a result depends on besides its case — playouts, the recorded log's bytes, the world model's weights and
+caution — for each row (`provenance`) and for a run's manifest (`world_model_entry`, `begin_run`)."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+
+from dynplan.data.collect import log_path
+from dynplan.data.store import sha256_file
+from dynplan.evaluation.cases import Case
+from dynplan.evaluation.store import Run
+from dynplan.models.checkpoint import weights_sha256
+from dynplan.models.registry import caution_for
+from dynplan.models.world_model import world_model_paths
+
+
+def _world_model_identity(model: str, model_dir: str | None) -> str:
+    """SHA-256 of the checkpoints a learned technique of configuration `model` plays with."""
+    return "+".join(weights_sha256(p) if p.exists() else "missing" for p in world_model_paths(model, model_dir))
+
+
+def provenance(case: Case, log_dir: str | os.PathLike, playouts: int, model_dir: str | None = None,
+                caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
+    """What a result depends on besides the case: playouts, the log's bytes, and the world model's weights and
+    caution (the configuration's own where `caution` does not override it; only the settings that are on are
+    recorded, so that results from before a setting existed stay valid)."""
+    source = log_path(log_dir, case.seed)
+    provenance = {"playouts": playouts, "log_sha256": sha256_file(source) if source.exists() else None}
+    if case.model is not None:
+        provenance["world_model_sha256"] = _world_model_identity(case.model, model_dir)
+        provenance.update(caution_for(case.model, caution).recorded())
+    return provenance
+
+
+def world_model_entry(model: str, model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> dict:
+    """What a run's manifest records of world-model configuration `model`: its weights and their SHA-256, and the
+    caution it plays with (only the settings that are on)."""
+    return {"weights_sha256": _world_model_identity(model, model_dir),
+            "weights": [str(p) for p in world_model_paths(model, model_dir)],
+            "caution": caution_for(model, caution).recorded()}  # fmt: skip
+
+
+def begin_run(run: Run, role: str, all_cases: list[Case], log_dir: str | os.PathLike, playouts: int, command: str,
+              model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
+    """Write (or extend) `run`'s manifest with what these cases play with: seeds, logs, weights, caution."""
+    seeds = sorted({c.seed for c in all_cases})
+    logs = {s: sha256_file(p) if (p := log_path(log_dir, s)).exists() else None for s in seeds}
+    models = {c.model for c in all_cases if c.model is not None}
+    return run.begin(role, playouts, seeds, logs, {m: world_model_entry(m, model_dir, caution) for m in sorted(models)},
+                     command)  # fmt: skip
