@@ -1,16 +1,29 @@
-"""Atomic file writes: write to a temporary file beside the target, then rename over it.
+"""Atomic file writes, and the checks an output path passes before any work starts.
 
-A reader never sees a half-written file, and an interrupted writer leaves only a `.tmp` file that the next
-run overwrites or ignores.
+A writer writes to a temporary file beside the target, then renames it over the target: a reader never sees a
+half-written file. The temporary file's name says who owns it (`.<name>.<host>.<pid>.<random>.tmp`), so a
+cleanup removes only temporaries whose writer is gone (`stale_temporaries`) and never another live writer's.
 """
 
 from __future__ import annotations
 
 import os
+import socket
 import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+
+#: Whom a temporary file belongs to: this host and process ('.' in a host name would split the field).
+_OWNER = f"{socket.gethostname().replace('.', '-')}.{os.getpid()}"
+#: A temporary file of another host counts as abandoned only after this long untouched (its writer cannot be
+#: asked whether it is alive).
+FOREIGN_STALE_S = 24 * 3600.0
+
+
+class OutputError(ValueError):
+    """An output path cannot be used; the message names the parameter, the path and why."""
 
 
 @contextmanager
@@ -20,7 +33,7 @@ def atomic_path(path: str | os.PathLike, keep_suffix: bool = False) -> Iterator[
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = ".tmp" + (path.suffix if keep_suffix else "")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{_OWNER}.", suffix=suffix, dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     umask = os.umask(0)
@@ -38,3 +51,67 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
+
+
+def stale_temporaries(folder: str | os.PathLike, target_glob: str = "*") -> list[Path]:
+    """Temporary files in `folder` (of targets matching `target_glob`) whose writer is gone: a process of this host
+    that no longer runs, an unnamed owner (older files), or another host's file untouched for a day. A live
+    writer's temporary file is never among them."""
+    stale = []
+    host = _OWNER.rsplit(".", 1)[0]
+    for tmp in sorted(Path(folder).glob(f".{target_glob}.*.tmp*")):
+        fields = tmp.name.split(".")
+        owner_host, owner_pid = (fields[-4], fields[-3]) if len(fields) >= 6 else (None, None)
+        if owner_host == host and owner_pid and owner_pid.isdigit():
+            gone = not _alive(int(owner_pid))
+        elif owner_host is not None and owner_pid and owner_pid.isdigit():
+            try:
+                gone = time.time() - tmp.stat().st_mtime > FOREIGN_STALE_S
+            except FileNotFoundError:
+                continue
+        else:
+            gone = True
+        if gone:
+            stale.append(tmp)
+    return stale
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    return folder in path.parents
+
+
+def check_output(path: str | os.PathLike, parameter: str, kind: str = "file",
+                 inputs: tuple[str | os.PathLike, ...] = ()) -> Path:  # fmt: skip
+    """Check, before any work, that `path` can be written as a `kind` ("file" or "folder"): it is not one of
+    `inputs`, not inside an input folder (a file) nor holding an input (a folder), not the other kind, and its
+    folder is writable. Returns it resolved; otherwise an OutputError naming `parameter`, the path and why."""
+    out = Path(path).expanduser().resolve()
+    for source in inputs:
+        source = Path(source).expanduser().resolve()
+        if out == source:
+            raise OutputError(f"{parameter} {path}: is an input of this command; choose another path")
+        if kind == "file" and source.is_dir() and _inside(out, source):
+            raise OutputError(f"{parameter} {path}: is inside {source}, which this command reads; choose another path")
+        if kind == "folder" and _inside(source, out):
+            raise OutputError(f"{parameter} {path}: holds {source}, which this command reads; choose another path")
+    if kind == "file" and out.is_dir():
+        raise OutputError(f"{parameter} {path}: is a folder; give the path of a file")
+    if kind == "folder" and out.exists() and not out.is_dir():
+        raise OutputError(f"{parameter} {path}: is a file; give the path of a folder")
+    start = out if kind == "folder" and out.is_dir() else out.parent
+    folder = next(candidate for candidate in (start, *start.parents) if candidate.exists())
+    if not folder.is_dir():
+        raise OutputError(f"{parameter} {path}: {folder} is a file, so nothing can be written under it")
+    if not os.access(folder, os.W_OK):
+        raise OutputError(f"{parameter} {path}: {folder} is not writable")
+    return out

@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
+from pathlib import Path
 
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.data.store import LogInfo, build_frame_store, inspect_for_store, list_logs
+from dynplan.data.store import LogInfo, build_frame_store, inspect_for_store, list_logs, store_problem
+from dynplan.files import check_output
 from dynplan.progress import progress
 from flows.runners import dask_address, dask_scheduler, task_runner
 
@@ -49,13 +52,26 @@ def main(argv: list[str] | None = None) -> dict:
     address = dask_address(args.dask_address)
     try:
         list_logs(args.log_dir)
-    except FileNotFoundError as error:
+        check_output(args.out, "--out", "folder", inputs=(args.log_dir,))
+        problem = store_problem(args.out)
+        if problem:
+            raise ValueError(f"--out {problem}")
+    except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
+    not_logs = sorted(p.name for p in Path(args.log_dir).glob("*.mcap") if not p.is_file())
+    for name in not_logs:
+        print(f"python -m flows.build_datasets: skipped {Path(args.log_dir) / name}: not a file", file=sys.stderr)
     report = build_datasets.with_options(task_runner=task_runner(address))(
         log_dir=args.log_dir, out=args.out, dask_address=address
     )
     if args.json:
         print(json.dumps(report))
+    if report["failed"]:
+        for path, reason in sorted(report["failed"].items()):
+            print(f"python -m flows.build_datasets: failed {path}: {reason}", file=sys.stderr)
+        print(f"python -m flows.build_datasets: {len(report['failed'])} logs failed; the rest are in the store",
+              file=sys.stderr)  # fmt: skip
+        raise SystemExit(1)
     return report
 
 

@@ -16,6 +16,7 @@ from prefect.futures import as_completed
 
 from dynplan.data.collect import DEFAULT_RECORDING, CollectPlan, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
+from dynplan.files import check_output
 from dynplan.progress import progress
 from flows.runners import dask_address, task_runner
 
@@ -59,6 +60,7 @@ def main(argv: list[str] | None = None) -> dict:
     try:
         world = RoadConfig(level=args.level, agent_speed=args.agent_speed)
         CollectPlan(episodes=args.episodes, seed=args.seed)
+        check_output(args.out, "--out", "folder")
     except ValueError as error:
         parser.error(str(error))
     runner = task_runner(dask_address(args.dask_address))

@@ -9,12 +9,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from prefect import flow
 
 from dynplan.config import ConfigError
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
 from dynplan.evaluation.techniques import TECHNIQUES
+from dynplan.files import check_output
 from dynplan.logs.reader import LogError
 from dynplan.models.registry import WORLD_MODELS
 
@@ -32,9 +34,11 @@ def replay_episode(
     model: str = "default",
     samples: int = 0,
     futures: int = 0,
+    model_dir: str | None = None,
 ) -> dict:
     """Replay one recorded episode through a planner."""
-    result = replay(log, planner, agent_speed, rollout_steps, playouts, out, gif, seed, model, samples, futures)
+    result = replay(log, planner, agent_speed, rollout_steps, playouts, out, gif, seed, model, samples, futures,
+                    model_dir)  # fmt: skip
     result = result.to_dict()
     print(f"{result['outcome']} after {result['steps']} steps; decision {result['decision_ms_median']:.3f} ms "
           f"(median), {result['decision_ms_mean']:.3f} ms (mean); replay log: {result['out']}")  # fmt: skip
@@ -62,18 +66,27 @@ def main(argv: list[str] | None = None) -> dict:
         "--out", help="replay MCAP to write (default: ../replays/EPISODE.replay-PLANNER.mcap from the log)"
     )
     parser.add_argument("--gif", help="also write a GIF: observed | true future | predicted | error")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the planner's own randomness")
+    parser.add_argument("--model-dir", help="learned weights under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
+                        "(default: the committed ones)")  # fmt: skip
+    parser.add_argument("--seed", type=int, default=0, help="seed of the planner's own randomness (>= 0)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     args = parser.parse_args(argv)
     out = args.out or str(default_outputs(args.log, args.planner, args.model, args.samples, args.futures))
     try:  # fail fast, with one line, before any flow machinery starts
+        if args.seed < 0:
+            raise ValueError(f"--seed={args.seed} is invalid; valid range [0, 2**32)")
+        check_output(out, "--out", "file", inputs=(args.log,))
+        if args.gif:
+            if Path(args.gif).resolve() == Path(out).resolve():
+                raise ValueError(f"--gif {args.gif}: is the path of --out too; give the GIF a path of its own")
+            check_output(args.gif, "--gif", "file", inputs=(args.log,))
         prepare(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, args.model, args.samples,
-                args.futures)  # fmt: skip
+                args.futures, args.model_dir)  # fmt: skip
     except (LogError, ConfigError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
     result = replay_episode(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, out,
-                            args.gif, args.seed, args.model, args.samples, args.futures)  # fmt: skip
+                            args.gif, args.seed, args.model, args.samples, args.futures, args.model_dir)  # fmt: skip
     if args.json:
         print(json.dumps(result))
     return result

@@ -21,7 +21,7 @@ from prefect.context import TaskRunContext
 
 from dynplan.config import ConfigError
 from dynplan.models import checkpoint
-from dynplan.models.checkpoint import digest
+from dynplan.models.checkpoint import CheckpointError, digest
 from dynplan.models.pixelcnn import PixelCNNConfig
 from dynplan.models.registry import WORLD_MODELS, world_model_spec
 from dynplan.models.vqvae import VQVAEConfig
@@ -102,6 +102,21 @@ def train_pixelcnn_flow(store: str = "datasets/frames.zarr", model: str = "defau
     return path
 
 
+def parse_overrides(items: list[str]) -> dict:
+    """`--set KEY=JSON …` as a dict; a malformed item is a ValueError naming it."""
+    overrides = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set {item!r}: expected KEY=JSON, e.g. codebook_size=1024 or 'strides=[2, 2]'")
+        try:
+            overrides[key] = json.loads(value)
+        except json.JSONDecodeError:
+            raise ValueError(f"--set {item!r}: the value {value!r} is not JSON (strings need quotes: "
+                             f"'{key}=\"{value}\"')") from None  # fmt: skip
+    return overrides
+
+
 def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(prog="python -m flows.train", description=__doc__)
     parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
@@ -119,7 +134,7 @@ def main(argv: list[str] | None = None) -> str:
     args = parser.parse_args(argv)
     codes = args.codes or f"codes_{args.model}"
     try:
-        overrides = {k: json.loads(v) for k, v in (item.split("=", 1) for item in args.set)}
+        overrides = parse_overrides(args.set)
         budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
                              threads=args.threads, init_from=args.init_from,
                              device=args.device).model_dump()  # fmt: skip
@@ -127,14 +142,16 @@ def main(argv: list[str] | None = None) -> str:
             VQVAEConfig(**{**world_model_spec(args.model).tokenizer.model_dump(), **overrides})
         else:
             PixelCNNConfig(**{**world_model_spec(args.model).prior.model_dump(), **overrides})
-        if args.init_from and not Path(args.init_from).is_file():
-            raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
+        if args.init_from:
+            if not Path(args.init_from).is_file():
+                raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
+            checkpoint.load(args.init_from, args.stage)  # truncated, foreign or of the other stage: one line
         if not Path(args.store).exists():
             raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
         if args.stage == "pixelcnn" and codes not in zarr.open_group(args.store, mode="r", use_consolidated=False):
             raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
                                     f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
-    except (ConfigError, ValueError, FileNotFoundError) as error:
+    except (ConfigError, ValueError, FileNotFoundError, CheckpointError) as error:
         parser.error(str(error))
     if args.stage == "vqvae":
         return train_vqvae_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides)

@@ -17,6 +17,7 @@ from pydantic import Field
 from dynplan.config import Config
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.files import stale_temporaries as stale_files
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.logs.writer import write_episode_log
 
@@ -79,5 +80,6 @@ def record_episode(out_dir: str | os.PathLike, seed: int, config: RoadConfig | d
 
 
 def stale_temporaries(out_dir: str | os.PathLike) -> list[Path]:
-    """Temporary files an interrupted writer left behind in `out_dir` (safe to delete)."""
-    return sorted(Path(out_dir).glob(".episode_*.mcap.*.tmp"))
+    """Temporary log files that writers no longer running left behind in `out_dir` (safe to delete; another
+    collection's live ones are not among them)."""
+    return stale_files(out_dir, "episode_*.mcap")

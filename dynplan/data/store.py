@@ -109,6 +109,27 @@ def load_frames(path: str) -> np.ndarray:
     return read_episode_log(path).frames
 
 
+def store_problem(store: str | os.PathLike) -> str | None:
+    """Why `store` cannot be created or extended as a frames store (None: it can): a file, a folder holding other
+    things, or a Zarr store that is not a dynplan frames store."""
+    path = Path(store)
+    if not path.exists():
+        return None
+    if not path.is_dir():
+        return f"{store}: is a file, not a Zarr store"
+    meta = path / "zarr.json"
+    if not meta.is_file():
+        entries = [p.name for p in path.iterdir()][:3]
+        return None if not entries else f"{store}: is a folder but not a Zarr store (it holds {', '.join(entries)}…)"
+    try:
+        attrs = json.loads(meta.read_text()).get("attributes", {})
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        return f"{store}/zarr.json: not readable JSON ({error})"
+    if attrs and attrs.get("format") != STORE_FORMAT:
+        return f"{store}: is a Zarr store but not a dynplan frames store (format {attrs.get('format')!r})"
+    return None
+
+
 def list_logs(log_dir: str | os.PathLike) -> list[Path]:
     """The episode logs in a folder, sorted by name; a missing folder is an error that names it."""
     log_dir = Path(log_dir)

@@ -44,9 +44,11 @@ class TrainBudget(Config):
     def _known_device(cls, value: str | None) -> str | None:
         if value is not None:
             try:
-                torch.device(value)
+                device = torch.device(value)
             except RuntimeError:
                 raise ValueError(f"unknown torch device {value!r} (e.g. 'cpu', 'cuda', 'cuda:1')") from None
+            if device.type == "cuda" and not torch.cuda.is_available():
+                raise ValueError(f"device {value!r}: this torch build sees no CUDA device (torch {torch.__version__})")
         return value
 
     @property
