@@ -51,7 +51,7 @@ PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
     "paper": PixelCNNConfig(name="paper", codebook_size=512, batch_size=256, learning_rate=1e-3),
     # The default's 12 × 12 grid has 4× the positions and an 8× wider head: 32 channels and a 5 × 5 first kernel
     # train 2× faster per window on a CPU than 64 and 7 and learn as fast per minute; embeddings started from the
-    # codebook reach 15.6 % code accuracy in 4 minutes against 11.2 % from random (README, "stage 2").
+    # codebook reach 15.6 % code accuracy in 4 minutes against 11.2 % from random (docs/design.md, prior).
     "default": PixelCNNConfig(
         name="default",
         codebook_size=4096,

@@ -108,7 +108,7 @@ PRESETS: dict[str, VQVAEConfig] = {
     # of the distinct patch contents and each of the 4096 most frequent (99.98 % of patches) gets a code of its own;
     # each code's decoder temperature is then calibrated to how often the patches occur. Goal pixels weigh 10× in
     # the loss; the EMA fields are unused by the content fit but part of the committed run's config (and key).
-    # The committed weights are run `vqvae-default-1de9881c4f7e` (README, "World model").
+    # The committed weights are run `vqvae-default-1de9881c4f7e` (docs/design.md, tokenizer).
     "default": VQVAEConfig(
         name="default",
         channels=(32, 64),

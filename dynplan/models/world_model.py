@@ -15,7 +15,7 @@ prior gives a probability of at least p of holding one, along the greedy future 
 where the argmax hides it: when an obstacle's next position is split over several codes, the argmax can be the
 empty patch). It needs patch-local codes, each decoding to its own patch. `margin = m` widens every predicted
 obstacle by m pixels along its lane (a row), both ways: the prior places a slow obstacle's sub-pixel phase a pixel
-off often enough that its neighbours are worth avoiding. Each configuration has its own caution (`CAUTION`),
+off often enough that its neighbours are worth avoiding. Each configuration has its own caution (its registry entry),
 chosen on validation episodes.
 """
 
@@ -191,8 +191,8 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
                      seed: int = 0, caution: Mapping[str, float] | None = None) -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
     pretrained checkpoints of the configuration `model` ("default" or "paper"), with the configuration's own
-    caution (`CAUTION`) except where `caution` (field → value) overrides it. Weights are loaded once per content
-    and shared by every model built on them."""
+    caution (its registry entry) except where `caution` (field → value) overrides it. Weights are loaded once per
+    content and shared by every model built on them."""
     paths = world_model_paths(model) if path is None else (Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt")
     tokenizer, prior = world_model_parts(paths, model)
     return LearnedWorldModel(tokenizer, prior, samples, futures, seed, **caution_for(model, caution).model_dump())
