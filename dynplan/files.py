@@ -8,6 +8,7 @@ cleanup removes only temporaries whose writer is gone (`stale_temporaries`) and 
 from __future__ import annotations
 
 import os
+import re
 import socket
 import tempfile
 import time
@@ -15,8 +16,10 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-#: Whom a temporary file belongs to: this host and process ('.' in a host name would split the field).
-_OWNER = f"{socket.gethostname().replace('.', '-')}.{os.getpid()}"
+#: This host, as a temporary file's name records it ('.' in a host name would split the fields).
+_HOST = socket.gethostname().replace(".", "-")
+#: `.<target>.<host>.<pid>.<random>.tmp[<suffix>]`
+_TEMP_NAME = re.compile(r"\.([^.]+)\.(\d+)\.[A-Za-z0-9_]+\.tmp(\.[^.]*)?$")
 #: A temporary file of another host counts as abandoned only after this long untouched (its writer cannot be
 #: asked whether it is alive).
 FOREIGN_STALE_S = 24 * 3600.0
@@ -33,7 +36,7 @@ def atomic_path(path: str | os.PathLike, keep_suffix: bool = False) -> Iterator[
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = ".tmp" + (path.suffix if keep_suffix else "")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{_OWNER}.", suffix=suffix, dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{_HOST}.{os.getpid()}.", suffix=suffix, dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     umask = os.umask(0)
@@ -68,19 +71,17 @@ def stale_temporaries(folder: str | os.PathLike, target_glob: str = "*") -> list
     that no longer runs, an unnamed owner (older files), or another host's file untouched for a day. A live
     writer's temporary file is never among them."""
     stale = []
-    host = _OWNER.rsplit(".", 1)[0]
     for tmp in sorted(Path(folder).glob(f".{target_glob}.*.tmp*")):
-        fields = tmp.name.split(".")
-        owner_host, owner_pid = (fields[-4], fields[-3]) if len(fields) >= 6 else (None, None)
-        if owner_host == host and owner_pid and owner_pid.isdigit():
-            gone = not _alive(int(owner_pid))
-        elif owner_host is not None and owner_pid and owner_pid.isdigit():
+        owner = _TEMP_NAME.search(tmp.name)
+        if owner is None:
+            gone = True  # no owner recorded
+        elif owner.group(1) == _HOST:
+            gone = not _alive(int(owner.group(2)))
+        else:
             try:
                 gone = time.time() - tmp.stat().st_mtime > FOREIGN_STALE_S
             except FileNotFoundError:
                 continue
-        else:
-            gone = True
         if gone:
             stale.append(tmp)
     return stale

@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     out = args.out or str(default_outputs(args.log, args.planner, args.model, args.samples, args.futures))
     try:  # fail fast, with one line, before any flow machinery starts
-        if args.seed < 0:
+        if not 0 <= args.seed < 2**32:
             raise ValueError(f"--seed={args.seed} is invalid; valid range [0, 2**32)")
         check_output(out, "--out", "file", inputs=(args.log,))
         if args.gif:

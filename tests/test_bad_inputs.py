@@ -157,3 +157,13 @@ def test_two_collections_into_one_folder_both_finish(tmp_path):
     logs = sorted(tmp_path.glob("episode_*.mcap"))
     assert [read_episode_log(p).seed for p in logs] == list(range(100, 108))
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_live_temporary_file_with_a_suffix_is_not_stale(tmp_path):
+    from dynplan.files import atomic_path, stale_temporaries
+
+    with atomic_path(tmp_path / "figure.png", keep_suffix=True) as tmp:
+        tmp.write_bytes(b"x")
+        assert tmp.name.endswith(".tmp.png") and stale_temporaries(tmp_path) == []
+    (tmp_path / ".figure.png.abc123.tmp").write_text("")  # no owner recorded: stale
+    assert [p.name for p in stale_temporaries(tmp_path)] == [".figure.png.abc123.tmp"]

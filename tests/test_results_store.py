@@ -188,3 +188,17 @@ def test_a_killed_evaluation_resumes_with_every_episode_exactly_once(tmp_path):
         (t, EVAL_SEED_START + i) for t in ("oracle", "zero") for i in range(3)
     )
     assert episodes.read_bytes().endswith(b"\n") and len(evaluation_rows(results)) == 6
+
+
+def test_a_run_keeps_its_playouts_and_a_replaced_file_is_read_anew(tmp_path):
+    run = Run(tmp_path)
+    begin(run)
+    with pytest.raises(StoreError, match="plays 100 playouts per decision, not 20: name another run"):
+        run.begin("evaluation", 20, [EVAL_SEED_START], {}, {}, "cmd")
+    run.append(row(EVAL_SEED_START))
+    assert not run.append(row(EVAL_SEED_START))  # the index is warm now
+    replaced = tmp_path / "new.jsonl"
+    replaced.write_text("\n".join(json.dumps(row(EVAL_SEED_START + i)) for i in range(5)) + "\n")
+    replaced.replace(run.episodes_path)  # another file at the same path, longer than the one indexed
+    assert not run.append(row(EVAL_SEED_START + 3))  # seen in the new file, not written twice
+    assert len(run.rows()) == 5

@@ -22,6 +22,7 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.models.metrics import frame_errors
+from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.forward import ForwardModel, goal_centres
 
 HORIZON = 10
@@ -129,7 +130,7 @@ def write_curves(path: str | os.PathLike, curves: dict, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
-    parser.add_argument("--model", default="default", choices=["default", "paper"])
+    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS))
     parser.add_argument("--samples", type=int, nargs="+", default=[0, 5], help="decoder samples (0: Mid)")
     parser.add_argument("--futures", type=int, nargs="*", default=[], help="also: code futures sampled from the prior")
     parser.add_argument("--prior", help="a prior checkpoint to use instead of the committed one")

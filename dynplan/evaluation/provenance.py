@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
+from pathlib import Path
 
 from dynplan.data.collect import log_path
 from dynplan.data.store import sha256_file
@@ -13,6 +14,14 @@ from dynplan.evaluation.store import Run
 from dynplan.models.checkpoint import weights_sha256
 from dynplan.models.registry import caution_for
 from dynplan.models.world_model import world_model_paths
+
+#: The checkout: paths inside it are recorded relative to it, so a manifest reads the same on every machine.
+_ROOT = Path(__file__).resolve().parents[2]
+
+
+def _shown(path: Path) -> str:
+    resolved = Path(path).resolve()
+    return str(resolved.relative_to(_ROOT)) if _ROOT in resolved.parents else str(path)
 
 
 def _world_model_identity(model: str, model_dir: str | None) -> str:
@@ -37,7 +46,7 @@ def world_model_entry(model: str, model_dir: str | None = None, caution: Mapping
     """What a run's manifest records of world-model configuration `model`: its weights and their SHA-256, and the
     caution it plays with (only the settings that are on)."""
     return {"weights_sha256": _world_model_identity(model, model_dir),
-            "weights": [str(p) for p in world_model_paths(model, model_dir)],
+            "weights": [_shown(p) for p in world_model_paths(model, model_dir)],
             "caution": caution_for(model, caution).recorded()}  # fmt: skip
 
 

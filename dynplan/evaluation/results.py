@@ -48,7 +48,7 @@ def prediction_section(results: Path, docs: Path) -> list[str]:
     for path in sorted(results.glob("prediction_*.json")):
         curves = json.loads(path.read_text())["curves"]
         header = " | ".join(f"k = {k}: FN / FP, goal" for k in HORIZONS)
-        lines += [f"`{path.relative_to(ROOT)}`:", "", f"| prediction | {header} |",
+        lines += [f"`{os.path.relpath(path, ROOT)}`:", "", f"| prediction | {header} |",
                   "|" + " --- |" * (1 + len(HORIZONS))]  # fmt: skip
         for name, c in curves.items():
             cells = [f"{_pct(c['fn_rate'][k - 1])} / {_pct(c['fp_rate'][k - 1])}, {c['goal_error_px'][k - 1]:.2f}"

@@ -118,10 +118,14 @@ class Run:
     def begin(self, role: str, playouts: int, seeds: Iterable[int], log_sha256: Mapping[int, str | None],
               world_models: Mapping[str, Mapping], command: str) -> dict:  # fmt: skip
         """Create the run, or extend its manifest with what this invocation plays: more seeds and logs, a world
-        model, or new weights / caution / playouts for one (whose earlier rows then go stale). The role of an
-        existing run does not change. Returns the manifest written."""
+        model, or new weights / caution for one (whose earlier rows then go stale). A run's role and playouts do
+        not change (another value is refused). Returns the manifest written."""
         if role not in ROLES:
             raise StoreError(f"run {self.name!r}: role {role!r} is invalid; one of {ROLES}")
+        with self._locked():  # two invocations extending one run keep both's seeds and models
+            return self._begin(role, playouts, seeds, log_sha256, world_models, command)
+
+    def _begin(self, role, playouts, seeds, log_sha256, world_models, command) -> dict:
         if self.exists():
             manifest = self.manifest()
             if manifest["role"] != role:
@@ -130,7 +134,9 @@ class Run:
         else:
             manifest = {"format": FORMAT, "name": self.name, "role": role, "playouts": playouts, "episode_seeds": [],
                         "log_sha256": {}, "world_models": {}, "invocations": []}  # fmt: skip
-        manifest["playouts"] = playouts
+        if manifest["playouts"] != playouts:
+            raise StoreError(f"{self.manifest_path}: run {self.name!r} plays {manifest['playouts']} playouts per "
+                             f"decision, not {playouts}: name another run with --run")  # fmt: skip
         manifest["episode_seeds"] = sorted(set(manifest["episode_seeds"]) | set(seeds))
         manifest["log_sha256"] = {**manifest["log_sha256"], **{str(s): h for s, h in log_sha256.items()}}
         manifest["world_models"] = {**manifest["world_models"], **{m: dict(v) for m, v in world_models.items()}}
@@ -173,8 +179,8 @@ class Run:
             f.flush()
             os.fsync(f.fileno())
             index[identity] = json.loads(line)
-            offset, lines, _ = _INDEX[self.episodes_path.resolve()]
-            _INDEX[self.episodes_path.resolve()] = (offset + len(line), lines + 1, index)
+            identity, offset, lines, _ = _INDEX[self.episodes_path.resolve()]
+            _INDEX[self.episodes_path.resolve()] = (identity, offset + len(line), lines + 1, index)
         return True
 
     def find(self, case: Mapping, provenance: Mapping) -> dict | None:
@@ -262,8 +268,9 @@ def evaluation_rows(root: str | os.PathLike) -> list[dict]:
     return out
 
 
-#: episodes file → (bytes read, lines read, its rows by identity): a process reads only what others added since.
-_INDEX: dict[Path, tuple[int, int, dict[str, dict]]] = {}
+#: episodes file → ((device, inode), bytes read, lines read, its rows by identity): a process reads only what others
+#: added since, and starts over when the file was replaced.
+_INDEX: dict[Path, tuple[tuple[int, int], int, int, dict[str, dict]]] = {}
 #: POSIX locks do not exclude threads of the same process; this does.
 _THREADS = threading.Lock()
 
@@ -276,9 +283,11 @@ def _index(f, path: Path, truncate: bool = False) -> dict[str, dict]:
     """The rows of the open file `f` by identity (read incrementally); with `truncate` (under the lock), a torn
     last line is cut off."""
     key = path.resolve()
-    offset, lines, index = _INDEX.get(key, (0, 0, {}))
+    stat = os.fstat(f.fileno())
+    identity = (stat.st_dev, stat.st_ino)
+    known, offset, lines, index = _INDEX.get(key, (identity, 0, 0, {}))
     size = f.seek(0, os.SEEK_END)
-    if size < offset:  # rewritten by someone else: start over
+    if known != identity or size < offset:  # replaced or rewritten by someone else: start over
         offset, lines, index = 0, 0, {}
     f.seek(offset)
     data = f.read()
@@ -288,5 +297,5 @@ def _index(f, path: Path, truncate: bool = False) -> dict[str, dict]:
     if truncate and intact < len(data):  # only under the lock is an unfinished line known to be torn
         _parse(data[intact:], path, first_line=lines + 1)  # reports it
         f.truncate(offset + intact)
-    _INDEX[key] = (offset + intact, lines, index)
+    _INDEX[key] = (identity, offset + intact, lines, index)
     return index

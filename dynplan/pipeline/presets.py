@@ -12,7 +12,7 @@ stage, what to evaluate. Presets are data — `PIPELINE_PRESETS` — validated l
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 from pydantic import Field, model_validator
 
@@ -55,7 +55,7 @@ class PipelinePreset(Config):
     name: str = Field(description="preset name; the run's outputs go to OUT/<name>/")
     description: str = Field("", description="one line for humans (the deployment's description)")
     train_episodes: int = Field(ge=5, le=1_000_000, description="episodes recorded for training (seeds 0 …)")
-    models: tuple[Literal["default", "paper"], ...] = Field(("default",), description="world-model configurations")
+    models: tuple[str, ...] = Field(("default",), description="world-model configurations (registry names)")
     pretrained: bool = Field(False, description="use the committed weights of a configuration instead of training")
     vqvae: dict[str, StagePlan] = Field(default_factory=dict, description="VQ-VAE stage per configuration")
     pixelcnn: dict[str, StagePlan] = Field(default_factory=dict, description="PixelCNN stage per configuration")
