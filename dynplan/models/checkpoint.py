@@ -12,6 +12,7 @@ from typing import Any
 
 import torch
 
+from dynplan.data.store import sha256_file
 from dynplan.files import atomic_path
 
 #: Where the committed, pretrained weights live: `<stage>-<configuration>.pt`, each with its model card `.json`.
@@ -92,11 +93,7 @@ def pretrained_path(stage: str, model: str) -> Path:
 
 @functools.cache
 def _sha256(path: str, mtime_ns: int, size: int) -> str:
-    digest_ = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest_.update(block)
-    return digest_.hexdigest()
+    return sha256_file(path)  # cached per version of the file (the arguments after the path)
 
 
 def weights_sha256(path: str | os.PathLike) -> str:
