@@ -1,4 +1,4 @@
-"""Atomic file writes, and the checks an output path passes before any work starts.
+"""Atomic file writes, exclusive locks between writers, and the checks an output path passes before any work.
 
 A writer writes to a temporary file beside the target, then renames it over the target: a reader never sees a
 half-written file. The temporary file's name says who owns it (`.<name>.<host>.<pid>.<random>.tmp`), so a
@@ -7,10 +7,13 @@ cleanup removes only temporaries whose writer is gone (`stale_temporaries`) and 
 
 from __future__ import annotations
 
+import fcntl
 import os
 import re
 import socket
+import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -54,6 +57,39 @@ def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)
+
+
+_THREADS: dict[str, threading.Lock] = {}
+_THREADS_GUARD = threading.Lock()
+
+
+@contextmanager
+def exclusive(lock_path: str | os.PathLike, waiting: str | None = None) -> Iterator[None]:
+    """Hold an exclusive lock on `lock_path` (created if missing, never removed) within the block: a POSIX lock,
+    which other processes and NFS honour, plus a thread lock per path, since POSIX locks do not exclude the threads
+    of one process. If another writer holds it, print `waiting` (with that writer's pid and host) once to stderr
+    and wait for it."""
+    lock_path = Path(lock_path)
+    lock_path.parent.mkdir(parents=True, exist_ok=True)
+    with _THREADS_GUARD:
+        thread_lock = _THREADS.setdefault(str(lock_path.resolve()), threading.Lock())
+    with thread_lock, open(lock_path, "a+") as lock:
+        try:
+            fcntl.lockf(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            if waiting is not None:
+                lock.seek(0)
+                holder = lock.read().strip() or "unknown"
+                print(f"{waiting} (held by {holder}); waiting for it to finish", file=sys.stderr, flush=True)
+            fcntl.lockf(lock, fcntl.LOCK_EX)
+        try:
+            lock.seek(0)
+            lock.truncate()
+            lock.write(f"pid {os.getpid()} on {_HOST}\n")
+            lock.flush()
+            yield
+        finally:
+            fcntl.lockf(lock, fcntl.LOCK_UN)
 
 
 def _alive(pid: int) -> bool:

@@ -1,7 +1,11 @@
 """`python -m flows.build_datasets LOG_DIR --out STORE.zarr`: turn episode logs into the Zarr frames store.
 
 Logs are inspected one Prefect task each and copied with dask; logs already in the store (by SHA-256) are
-skipped, so rerunning after new logs arrive appends only those. Damaged logs are reported and skipped.
+skipped, so rerunning after new logs arrive appends only those, after checking the episodes already in (and
+repairing any damaged one from its log). Damaged logs are reported and skipped.
+
+`python -m flows.build_datasets --verify STORE.zarr [LOG_DIR]` re-reads every chunk of the store, names each
+damaged one with its episodes and, given the logs, repairs them; exit status 1 if damage remains.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
 from dynplan.data.store import LogInfo, build_frame_store, inspect_for_store, list_logs, store_problem
+from dynplan.data.verify import verify_store
 from dynplan.files import check_output
 from dynplan.progress import progress
 from flows.runners import dask_address, dask_scheduler, task_runner
@@ -35,6 +40,8 @@ def build_datasets(log_dir: str = "datasets/logs", out: str = "datasets/frames.z
     infos = [f.result() for f in progress(as_completed(futures), total=len(futures), description="inspect logs")]
     with dask_scheduler(dask_address):
         report = build_frame_store(out, infos)
+    for line in report.repaired:
+        print(f"repaired: {line}")
     for reason in report.failed.values():
         print(f"skipped: {reason}")
     print(f"{out}: {len(report.added)} added, {len(report.skipped)} already in, {len(report.failed)} failed; "
@@ -42,16 +49,46 @@ def build_datasets(log_dir: str = "datasets/logs", out: str = "datasets/frames.z
     return report.to_dict()
 
 
+def verify(store: str, log_dir: str | None, as_json: bool) -> dict:
+    """Check every chunk of `store`, repairing from `log_dir` if given; exit 1 if damage remains."""
+    report = verify_store(store, log_dir)
+    for damage in report.damage:
+        print(f"{store}: {damage.describe()}", file=sys.stderr)
+    repaired = len(report.damage) - len(report.unrepaired)
+    print(f"{store}: {report.chunks} chunks of {report.episodes} episodes checked; {len(report.damage)} damaged, "
+          f"{repaired} repaired")  # fmt: skip
+    if as_json:
+        print(json.dumps(report.to_dict()))
+    if report.unrepaired:
+        hint = "" if log_dir else "; give the folder of its logs to repair them"
+        print(f"python -m flows.build_datasets: {len(report.unrepaired)} damaged chunks remain in {store}{hint}",
+              file=sys.stderr)  # fmt: skip
+        raise SystemExit(1)
+    return report.to_dict()
+
+
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m flows.build_datasets", description=__doc__)
-    parser.add_argument("log_dir", help="folder of episode logs (*.mcap)")
+    parser = argparse.ArgumentParser(prog="python -m flows.build_datasets", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("log_dir", nargs="?", help="folder of episode logs (*.mcap); with --verify, optional")
     parser.add_argument("--out", default="datasets/frames.zarr", help="Zarr store to create or extend")
+    parser.add_argument("--verify", metavar="STORE", help="check every chunk of STORE (and repair it from LOG_DIR)")
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     args = parser.parse_args(argv)
     address = dask_address(args.dask_address)
     try:
-        list_logs(args.log_dir)
+        if args.log_dir is not None:
+            list_logs(args.log_dir)
+        if args.verify is not None:
+            if not Path(args.verify, "zarr.json").is_file():
+                raise FileNotFoundError(f"--verify {args.verify}: no Zarr store there")
+            problem = store_problem(args.verify)
+            if problem and "format version" not in problem:
+                raise ValueError(f"--verify {problem}")
+            return verify(args.verify, args.log_dir, args.json)
+        if args.log_dir is None:
+            raise ValueError("give LOG_DIR, the folder of episode logs (or --verify STORE)")
         check_output(args.out, "--out", "folder", inputs=(args.log_dir,))
         problem = store_problem(args.out)
         if problem:
@@ -69,8 +106,8 @@ def main(argv: list[str] | None = None) -> dict:
     if report["failed"]:
         for path, reason in sorted(report["failed"].items()):
             print(f"python -m flows.build_datasets: failed {path}: {reason}", file=sys.stderr)
-        print(f"python -m flows.build_datasets: {len(report['failed'])} logs failed; the rest are in the store",
-              file=sys.stderr)  # fmt: skip
+        print(f"python -m flows.build_datasets: failed on {len(report['failed'])} of its inputs; the rest are in the "
+              "store", file=sys.stderr)  # fmt: skip
         raise SystemExit(1)
     return report
 

@@ -121,7 +121,7 @@ def test_build_datasets_exits_1_and_names_the_logs_that_failed(inputs, tmp_path)
         f"failed {logs / 'broken.mcap'}: " in proc.stderr
         and f"skipped {logs / 'folder.mcap'}: not a file" in proc.stderr
     )
-    assert "1 logs failed; the rest are in the store" in proc.stderr and "Traceback" not in proc.stderr
+    assert "failed on 1 of its inputs; the rest are in the store" in proc.stderr and "Traceback" not in proc.stderr
 
 
 @pytest.mark.slow

@@ -15,6 +15,8 @@ import torch
 import zarr
 from torch.utils.data import Dataset
 
+from dynplan.data.chunks import read
+
 Split = Literal["train", "validation", "all"]
 #: Frames of context a window gives before its target (docs/protocol.md §2: the PixelCNN conditions on the last 4).
 CONTEXT = 4
@@ -38,10 +40,10 @@ class _EpisodeArray(Dataset):
         group = zarr.open_group(str(store), mode="r", use_consolidated=False)  # arrays may be growing
         if array not in group:
             raise KeyError(f"{store}: no array {array!r} (has {sorted(group.array_keys())})")
-        self.array = group[array]
+        self.store, self.array = str(store), group[array]
         n_episodes = int(group.attrs.get("episodes", 0))  # committed episodes (arrays may run longer)
         n_episodes = min(n_episodes, int(self.array.attrs.get("episodes", n_episodes)))  # e.g. codes not yet built
-        self.seeds = group["seed"][:n_episodes]
+        self.seeds = read(self.store, group["seed"], slice(0, n_episodes))
         validation = is_validation(self.seeds[:n_episodes], val_fraction)
         keep = {"train": ~validation, "validation": validation, "all": np.ones(n_episodes, bool)}[split]
         self.episodes = np.nonzero(keep)[0]
@@ -52,7 +54,9 @@ class _EpisodeArray(Dataset):
         """All frames (T, …) of the split's i-th episode (read on first use, then kept)."""
         episode = int(self.episodes[i])
         if episode not in self._cache:
-            self._cache[episode] = self.array[episode]
+            self._cache[episode] = read(
+                self.store, self.array, episode, lambda rows: f"episode {episode}, seed {self.seeds[episode]}"
+            )
         return self._cache[episode]
 
 

@@ -11,12 +11,14 @@ Layout (readable with `zarr`, `dask.array.from_zarr` or `xarray.open_zarr`, no d
 | log_sha256 | (episode,)                   | string  | 1024           | episode                      |
 
 Group attributes hold the format, the world config, n_frames, height, width and the pixel-value legend.
-Row 0 of `y` is the bottom of the world.
+Row 0 of `y` is the bottom of the world. Every chunk carries a CRC-32C (`dynplan.data.chunks`).
 
-Appending is incremental: logs whose SHA-256 is already in `log_sha256` are skipped, new ones are appended in
-(seed, name) order; replays and a second log of a seed already in are refused. The group attribute `episodes`
-is written after each batch and is the store's commit record: arrays may be longer after an interrupted
-append, and the next build truncates them back to it.
+Appending is incremental: logs whose SHA-256 is already in `log_sha256` are skipped (and their episodes checked,
+and repaired from those logs if damaged), new ones are appended in (seed, name) order; replays and a second log of
+a seed already in are refused. New rows are written before the arrays grow, and the group attribute `episodes`,
+written after each batch, is the store's commit record: an append interrupted between growing one array and the
+next leaves arrays of different lengths, each holding complete rows only, and the next build truncates them back
+to it. One build or repair at a time holds the store's lock (`<store>.lock`, beside it); another waits, saying so.
 """
 
 from __future__ import annotations
@@ -34,11 +36,18 @@ import dask.array as da
 import numpy as np
 import zarr
 
+from dynplan.data.chunks import COMPRESSORS, commit_rows, read, staged, write_rows
 from dynplan.env.config import FREE, GOAL_VALUE, obstacle_classes
+from dynplan.files import exclusive
 from dynplan.logs.reader import LogError, read_episode_log
 
 STORE_FORMAT = "dynplan.frames"
-STORE_VERSION = "1"
+#: 2: checksummed chunks; 1 (without checksums) is read but no longer extended.
+STORE_VERSION = "2"
+def lock_path(store: str | os.PathLike) -> Path:
+    """The store's lock file, beside it (inside, Zarr would warn of a file it does not know)."""
+    store = Path(store)
+    return store.with_name(store.name + ".lock")
 #: Episodes appended per dask computation (bounds memory: 64 × 407 × 48 × 48 B ≈ 60 MB).
 BATCH_EPISODES = 64
 
@@ -74,10 +83,11 @@ class BuildReport:
     added: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
+    repaired: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {"store": self.store, "episodes": self.episodes, "added": self.added, "skipped": self.skipped,
-                "failed": self.failed}  # fmt: skip
+                "failed": self.failed, "repaired": self.repaired}  # fmt: skip
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -127,6 +137,11 @@ def store_problem(store: str | os.PathLike) -> str | None:
         return f"{store}/zarr.json: not readable JSON ({error})"
     if attrs and attrs.get("format") != STORE_FORMAT:
         return f"{store}: is a Zarr store but not a dynplan frames store (format {attrs.get('format')!r})"
+    if attrs and attrs.get("format_version") != STORE_VERSION:
+        return (
+            f"{store}: is a frames store of format version {attrs.get('format_version')!r}, whose chunks carry no "
+            f"checksums; move it aside and build a new one (version {STORE_VERSION}) from its logs"
+        )
     return None
 
 
@@ -153,17 +168,13 @@ def _create(group: zarr.Group, first: LogInfo) -> None:
         y_axis="row 0 is the bottom of the world",
     )  # fmt: skip
     # overwrite=True: a first build killed half-way through creating these is simply started again.
+    options = {"compressors": COMPRESSORS, "overwrite": True}
     group.create_array("frames", shape=(0, T, H, W), chunks=(1, T, H, W), dtype="uint8",
-                       dimension_names=("episode", "time", "y", "x"), overwrite=True)  # fmt: skip
+                       dimension_names=("episode", "time", "y", "x"), **options)  # fmt: skip
     group.create_array("goal", shape=(0, T, 2), chunks=(BATCH_EPISODES, T, 2), dtype="float64",
-                       dimension_names=("episode", "time", "yx"), overwrite=True)  # fmt: skip
+                       dimension_names=("episode", "time", "yx"), **options)  # fmt: skip
     for name, dtype in (("seed", "int64"), ("log_name", str), ("log_sha256", str)):
-        group.create_array(name, shape=(0,), chunks=(1024,), dtype=dtype, dimension_names=("episode",), overwrite=True)
-
-
-def _resize_episodes(array: zarr.Array, n: int) -> None:
-    if array.shape[0] != n:
-        array.resize((n, *array.shape[1:]))
+        group.create_array(name, shape=(0,), chunks=(1024,), dtype=dtype, dimension_names=("episode",), **options)
 
 
 def committed(group: zarr.Group) -> int:
@@ -171,13 +182,25 @@ def committed(group: zarr.Group) -> int:
     return int(group.attrs.get("episodes", 0)) if "log_sha256" in group else 0
 
 
+def committed_rows(store: str | os.PathLike) -> int:
+    """Episodes committed to the store at `store` (0 if there is none yet)."""
+    if not Path(store, "zarr.json").is_file():
+        return 0
+    return committed(zarr.open_group(str(store), mode="r", use_consolidated=False))
+
+
+def episodes_digest(checksums: Sequence[str]) -> str:
+    """A key for a prefix of the store's episodes: the digest of their logs' checksums, in order."""
+    return hashlib.sha256("".join(checksums).encode()).hexdigest()
+
+
 def committed_checksums(store: str | os.PathLike) -> list[str]:
     """SHA-256 of every log committed to `store` (empty if there is no store yet)."""
-    if not Path(store).exists():
+    if not Path(store, "zarr.json").is_file():
         return []
     group = zarr.open_group(str(store), mode="r", use_consolidated=False)
     n = committed(group)
-    return list(group["log_sha256"][:n]) if n else []
+    return list(read(store, group["log_sha256"], slice(0, n))) if n else []
 
 
 def fingerprint(store: str | os.PathLike) -> str:
@@ -188,13 +211,30 @@ def fingerprint(store: str | os.PathLike) -> str:
 
 
 def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> BuildReport:
-    """Append the logs described by `infos` (from `inspect_for_store`) to the Zarr group at `store`.
+    """Append the logs described by `infos` (from `inspect_for_store`) to the Zarr group at `store`, under the
+    store's lock; the episodes of logs already in are checked and, if damaged, repaired from those logs.
 
     Frames are copied with dask, one task per episode chunk, on whatever dask scheduler is active (a
-    `distributed.Client` if one is, threads otherwise). Writes nothing at all when every log is already in.
+    `distributed.Client` if one is, threads otherwise). Writes nothing when every log is already in, intact.
     """
     store = str(store)
+    problem = store_problem(store)
+    if problem:
+        raise ValueError(problem)
+    with exclusive(lock_path(store), waiting=f"{store}: another build or repair holds the store"):
+        return _build_locked(store, infos)
+
+
+def _build_locked(store: str, infos: Sequence[LogInfo]) -> BuildReport:
+    from dynplan.data.verify import verify_store  # verify builds on this module
+
     report = BuildReport(store, episodes=0)
+    if committed_rows(store):  # check what is in before relying on it, repairing from these logs
+        checked = verify_store(store, [info for info in infos if not info.error], lock=False)
+        report.repaired = [d.describe() for d in checked.damage if d.repaired]
+        report.failed.update({f"{store}/{d.array}/{d.chunk}": d.describe() for d in checked.unrepaired})
+        if checked.unrepaired:
+            return report
     known = set(committed_checksums(store))
     report.episodes = len(known)
     new: dict[str, LogInfo] = {}
@@ -231,19 +271,19 @@ def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> Bui
             accepted.append(info)
 
     for name in ARRAYS:  # roll back an interrupted append
-        _resize_episodes(group[name], n)
+        commit_rows(group[name], n)
     T, H, W = expected["n_frames"], expected["height"], expected["width"]
     for start in range(0, len(accepted), BATCH_EPISODES):
         batch = accepted[start : start + BATCH_EPISODES]
         k = len(batch)
-        for name in ARRAYS:
-            _resize_episodes(group[name], n + k)
         frames = da.stack([da.from_delayed(dask.delayed(load_frames)(i.path), (T, H, W), np.uint8) for i in batch])
-        da.store(frames, group["frames"], regions=(slice(n, n + k),), lock=False)
-        group["goal"][n : n + k] = np.stack([i.goal for i in batch])
-        group["seed"][n : n + k] = np.array([i.seed for i in batch], dtype=np.int64)
-        group["log_name"][n : n + k] = np.array([i.name for i in batch])
-        group["log_sha256"][n : n + k] = np.array([i.sha256 for i in batch])
+        da.store(frames, staged(group["frames"], n + k), regions=(slice(n, n + k),), lock=False)
+        write_rows(group["goal"], n, np.stack([i.goal for i in batch]))
+        write_rows(group["seed"], n, np.array([i.seed for i in batch], dtype=np.int64))
+        write_rows(group["log_name"], n, np.array([i.name for i in batch]))
+        write_rows(group["log_sha256"], n, np.array([i.sha256 for i in batch]))
+        for name in ARRAYS:  # every row up to n + k is written: show it
+            commit_rows(group[name], n + k)
         n += k
         group.attrs["episodes"] = n  # the commit: everything up to n is complete
         report.added.extend(i.path for i in batch)

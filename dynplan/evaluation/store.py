@@ -14,19 +14,18 @@ equals the manifest's; rows played under an earlier manifest stay in the file, s
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import re
 import subprocess
 import threading
 import warnings
-from collections.abc import Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Iterable, Mapping
+from contextlib import AbstractContextManager
 from datetime import datetime, timezone
 from pathlib import Path
 
-from dynplan.files import write_bytes_atomic
+from dynplan.files import exclusive, write_bytes_atomic
 from dynplan.models.caution import Caution
 from dynplan.version import __version__
 
@@ -146,16 +145,9 @@ class Run:
         return manifest
 
     # -- rows ---------------------------------------------------------------------------------------------------
-    @contextmanager
-    def _locked(self) -> Iterator[None]:
-        """Exclusive against other processes (a POSIX lock, which NFS honours) and this process's threads."""
-        self.dir.mkdir(parents=True, exist_ok=True)
-        with _THREADS, open(self._lock_path, "a") as lock:
-            fcntl.lockf(lock, fcntl.LOCK_EX)
-            try:
-                yield
-            finally:
-                fcntl.lockf(lock, fcntl.LOCK_UN)
+    def _locked(self) -> AbstractContextManager[None]:
+        """Exclusive against other processes and this process's threads."""
+        return exclusive(self._lock_path)
 
     def rows(self) -> list[dict]:
         """Every row of the run's file, in the order written (stale ones included). A torn last line is reported
@@ -171,7 +163,7 @@ class Run:
         False): concurrent writers never duplicate a row. A torn last line is cut off first."""
         line = (json.dumps(dict(row), separators=(", ", ": ")) + "\n").encode()
         identity = _identity(row)
-        with self._locked(), open(self.episodes_path, "a+b") as f:
+        with self._locked(), _INDEX_LOCK, open(self.episodes_path, "a+b") as f:
             index = _index(f, self.episodes_path, truncate=True)
             if identity in index:
                 return False
@@ -186,7 +178,7 @@ class Run:
     def find(self, case: Mapping, provenance: Mapping) -> dict | None:
         """The row of `case` played with `provenance`, if the run holds one."""
         try:
-            with _THREADS, open(self.episodes_path, "rb") as f:
+            with _INDEX_LOCK, open(self.episodes_path, "rb") as f:
                 return _index(f, self.episodes_path).get(_identity({**case, **provenance}))
         except FileNotFoundError:
             return None
@@ -271,8 +263,8 @@ def evaluation_rows(root: str | os.PathLike) -> list[dict]:
 #: episodes file → ((device, inode), bytes read, lines read, its rows by identity): a process reads only what others
 #: added since, and starts over when the file was replaced.
 _INDEX: dict[Path, tuple[tuple[int, int], int, int, dict[str, dict]]] = {}
-#: POSIX locks do not exclude threads of the same process; this does.
-_THREADS = threading.Lock()
+#: Guards `_INDEX` between this process's threads.
+_INDEX_LOCK = threading.Lock()
 
 
 def _identity(row: Mapping) -> str:

@@ -9,7 +9,6 @@ or a frames store whose earlier episodes changed, re-encodes everything.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import warnings
 from pathlib import Path
@@ -19,7 +18,8 @@ import numpy as np
 import torch
 import zarr
 
-from dynplan.data.store import committed_checksums, sha256_file
+from dynplan.data.chunks import COMPRESSORS, commit_rows, staged
+from dynplan.data.store import committed_checksums, episodes_digest, sha256_file
 from dynplan.models.checkpoint import VQVAE_KIND, cached
 from dynplan.progress import progress
 
@@ -34,10 +34,6 @@ def _encode_block(block: np.ndarray, checkpoint: str) -> np.ndarray:
     E, T = block.shape[:2]
     codes = model.encode(torch.from_numpy(np.ascontiguousarray(block.reshape(E * T, *block.shape[2:]))))
     return codes.numpy().astype(np.uint16).reshape(E, T, *codes.shape[1:])
-
-
-def _digest(checksums: list[str]) -> str:
-    return hashlib.sha256("".join(checksums).encode()).hexdigest()
 
 
 def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: str, batch: int = 100) -> str:
@@ -58,20 +54,20 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         # Keep what was encoded only if those episodes are still the same ones (the frames store may have been
         # rolled back and refilled since).
         done = int(group[array_name].attrs.get("episodes", 0))
-        if done > E or group[array_name].attrs.get("source_digest") != _digest(checksums[:done]):
+        if done > E or group[array_name].attrs.get("source_digest") != episodes_digest(checksums[:done]):
             done = 0
     if done == 0:
         if array_name in group:
             del group[array_name]
         dims = ("episode", "time", "code_y", "code_x", "codebook")[: 2 + len(code_shape)]
         group.create_array(array_name, shape=(0, T, *code_shape), chunks=(1, T, *code_shape), dtype="uint16",
-                           dimension_names=dims)  # fmt: skip
+                           dimension_names=dims, compressors=COMPRESSORS)  # fmt: skip
     codes = group[array_name]
-    codes.resize((E, T, *code_shape))
+    commit_rows(codes, done)  # rows after the recorded ones are from an interrupted encoding
 
     def record(stop: int) -> None:  # the first `stop` episodes are encoded, by this checkpoint, from these logs
         codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(),
-                           episodes=stop, source_digest=_digest(checksums[:stop]))  # fmt: skip
+                           episodes=stop, source_digest=episodes_digest(checksums[:stop]))  # fmt: skip
         # Readers that trust the consolidated metadata (zarr's default) see the array and its progress at once.
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
@@ -82,7 +78,8 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         stop = min(E, start + batch)
         source = da.from_zarr(frames)[start:stop]
         encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, *code_shape))
-        da.store(encoded, codes, regions=(slice(start, stop),), lock=False)
+        da.store(encoded, staged(codes, stop), regions=(slice(start, stop),), lock=False)
+        commit_rows(codes, stop)  # written, then shown
         record(stop)
     record(E)
     return array_name

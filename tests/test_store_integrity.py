@@ -1,0 +1,198 @@
+"""The frames store under damage and concurrency: every flipped byte is found, named and repaired from the logs;
+plain Zarr readers never see an unfinished append; two conversions into one store both finish correctly."""
+
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import dask.array as da
+import numpy as np
+import pytest
+import xarray as xr
+import zarr
+
+from dynplan.data.chunks import ChunkError
+from dynplan.data.datasets import FrameDataset
+from dynplan.data.store import ARRAYS, build_frame_store_from_logs, fingerprint, list_logs, lock_path
+from dynplan.data.verify import verify_store
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def contents(store) -> dict[str, np.ndarray]:
+    group = zarr.open_group(str(store), mode="r", use_consolidated=False)
+    return {name: group[name][:] for name in ARRAYS}
+
+
+def chunk_files(store) -> list[Path]:
+    return sorted(p for name in ARRAYS for p in (Path(store) / name / "c").rglob("*") if p.is_file())
+
+
+def flip(path: Path, rng: np.random.Generator) -> int:
+    data = bytearray(path.read_bytes())
+    at = int(rng.integers(len(data)))
+    data[at] ^= 1 << int(rng.integers(8))
+    path.write_bytes(bytes(data))
+    return at
+
+
+@pytest.fixture
+def store(tmp_path, recorded_logs):
+    out = tmp_path / "frames.zarr"
+    build_frame_store_from_logs(out, list_logs(recorded_logs))
+    return out
+
+
+def test_every_flipped_byte_is_reported_with_its_episode_and_repaired(store, recorded_logs):
+    original, before = contents(store), fingerprint(store)
+    rng = np.random.default_rng(0)
+    files = chunk_files(store)
+    assert len(files) == 10  # six frames chunks, one each of goal, seed, log_name, log_sha256
+    for path in files:
+        for _ in range(3):  # three flips per chunk, anywhere in it (header, payload or checksum)
+            flip(path, rng)
+            report = verify_store(store)
+            (damage,) = report.damage
+            array, *key = path.relative_to(store).parts
+            assert (damage.array, damage.chunk) == (array, "/".join(key))
+            assert "episode" in damage.episodes and not damage.repaired
+            repaired = verify_store(store, recorded_logs)
+            assert [d.repaired for d in repaired.damage] == [True], repaired.to_dict()
+            assert verify_store(store).damage == []
+    after = contents(store)
+    for name in ARRAYS:
+        np.testing.assert_array_equal(after[name], original[name])
+    assert fingerprint(store) == before
+
+
+def test_readers_name_the_damaged_chunk_and_episode(store):
+    flip(store / "frames" / "c" / "3" / "0" / "0" / "0", np.random.default_rng(1))
+    dataset = FrameDataset(store, "all")
+    with pytest.raises(ChunkError, match=r"array 'frames', chunk c/3/0/0/0 \(episode 3, seed 3\) is damaged: its "
+                                         r"CRC-32C does not match"):  # fmt: skip
+        dataset[3 * 407]
+    assert dataset[0].shape == (48, 48)  # the intact episodes still read
+    with pytest.raises(ValueError, match="checksum"):  # a reader without dynplan gets an error, not wrong pixels
+        zarr.open_group(str(store), mode="r")["frames"][3]
+    flip(store / "seed" / "c" / "0", np.random.default_rng(2))
+    with pytest.raises(ChunkError, match=r"array 'seed', chunk c/0 \(episodes 0–5\)"):
+        FrameDataset(store, "all")
+
+
+def test_a_missing_chunk_is_damage_not_zeros(store, recorded_logs):
+    (store / "frames" / "c" / "2" / "0" / "0" / "0").unlink()
+    (damage,) = verify_store(store).damage
+    assert damage.chunk == "c/2/0/0/0" and damage.problem == "the chunk file is missing"
+    assert "seed 2" in damage.episodes and "episode_0000000002.mcap" in damage.episodes
+    assert verify_store(store, recorded_logs).damage[0].repaired
+
+
+def test_lost_identity_is_recovered_from_the_other_records(store, recorded_logs):
+    original = contents(store)
+    for name in ("seed", "log_sha256"):  # only the log names are left to find each episode's log by
+        flip(store / name / "c" / "0", np.random.default_rng(3))
+    report = verify_store(store, recorded_logs)
+    assert sorted(d.array for d in report.damage if d.repaired) == ["log_sha256", "seed"]
+    for name in ARRAYS:
+        np.testing.assert_array_equal(contents(store)[name], original[name])
+    flip(store / "log_name" / "c" / "0", np.random.default_rng(4))
+    flip(store / "log_sha256" / "c" / "0", np.random.default_rng(5))
+    flip(store / "seed" / "c" / "0", np.random.default_rng(6))
+    report = verify_store(store, recorded_logs)
+    assert len(report.unrepaired) == 3
+    assert all("lost its seed, log name and checksum" in d.unrepaired_because for d in report.unrepaired)
+
+
+def test_a_rebuild_checks_what_it_skips_and_repairs_it(store, recorded_logs):
+    original = contents(store)
+    flip(store / "frames" / "c" / "4" / "0" / "0" / "0", np.random.default_rng(7))
+    report = build_frame_store_from_logs(store, list_logs(recorded_logs))
+    assert report.added == [] and len(report.skipped) == 6 and not report.failed
+    assert len(report.repaired) == 1 and "chunk c/4/0/0/0 (episode 4, seed 4" in report.repaired[0]
+    np.testing.assert_array_equal(contents(store)["frames"], original["frames"])
+
+
+def test_a_rebuild_without_the_damaged_episodes_log_fails_naming_it(store, recorded_logs, tmp_path):
+    logs = tmp_path / "some"
+    logs.mkdir()
+    for path in list_logs(recorded_logs)[:3]:
+        shutil.copy(path, logs)
+    flip(store / "frames" / "c" / "5" / "0" / "0" / "0", np.random.default_rng(8))
+    report = build_frame_store_from_logs(store, list_logs(logs))
+    (reason,) = report.failed.values()
+    assert "chunk c/5/0/0/0 (episode 5, seed 5" in reason and "not repaired: no log with SHA-256" in reason
+
+
+def test_verify_command_reports_then_repairs(store, recorded_logs):
+    flip(store / "goal" / "c" / "0" / "0" / "0", np.random.default_rng(9))
+    command = [sys.executable, "-m", "flows.build_datasets", "--verify", str(store)]
+    found = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert found.returncode == 1 and "Traceback" not in found.stderr
+    assert "array 'goal', chunk c/0/0/0 (episode 0, seed 0, log episode_0000000000.mcap;" in found.stderr
+    assert "give the folder of its logs to repair them" in found.stderr
+    fixed = subprocess.run([*command, str(recorded_logs)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert fixed.returncode == 0, fixed.stderr
+    assert "1 damaged, 1 repaired" in fixed.stdout
+    again = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0 and "0 damaged" in again.stdout
+
+
+def test_plain_readers_never_see_an_unfinished_append(tmp_path, recorded_logs, monkeypatch):
+    import dynplan.data.store as store_module
+
+    store = tmp_path / "frames.zarr"
+    logs = list_logs(recorded_logs)
+    build_frame_store_from_logs(store, logs[:2])
+    original = store_module.write_rows
+
+    def crash(array, start, values):
+        if array.basename == "log_sha256":  # frames, goal, seed and names of the new rows are written by now
+            raise KeyboardInterrupt("killed mid-append")
+        original(array, start, values)
+
+    monkeypatch.setattr(store_module, "write_rows", crash)
+    with pytest.raises(KeyboardInterrupt):
+        build_frame_store_from_logs(store, logs)
+    assert da.from_zarr(str(store), component="frames").shape[0] == 2
+    assert all(zarr.open_array(str(store / name), mode="r").shape[0] == 2 for name in ARRAYS)
+    assert xr.open_zarr(store, consolidated=False).sizes["episode"] == 2
+    assert xr.open_zarr(store).sizes["episode"] == 2
+    monkeypatch.setattr(store_module, "write_rows", original)
+    report = build_frame_store_from_logs(store, logs)
+    assert report.episodes == 6 and len(report.added) == 4
+    assert list(zarr.open_group(str(store), mode="r")["seed"][:]) == list(range(6))
+    assert verify_store(store).damage == []
+
+
+BUILD = "from dynplan.data.store import build_frame_store_from_logs as b, list_logs as l\nimport sys\n" \
+        "r = b(sys.argv[1], l(sys.argv[2])); print(\"added\", len(r.added), r.episodes)"  # fmt: skip
+
+
+@pytest.mark.slow
+def test_two_conversions_into_one_store_both_finish(tmp_path, recorded_logs):
+    firsts, lasts = tmp_path / "a", tmp_path / "b"
+    for folder, picks in ((firsts, slice(0, 4)), (lasts, slice(2, 6))):  # overlapping: episodes 2 and 3 in both
+        folder.mkdir()
+        for path in list_logs(recorded_logs)[picks]:
+            shutil.copy(path, folder)
+    store = tmp_path / "frames.zarr"
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys\nfrom dynplan.files import exclusive\n"
+        "with exclusive(sys.argv[1]):\n    print('held', flush=True)\n    sys.stdin.readline()"), str(lock_path(store))],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    assert holder.stdout.readline().strip() == "held"
+    procs = [subprocess.Popen([sys.executable, "-c", BUILD, str(store), str(logs)], cwd=ROOT, text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE) for logs in (firsts, lasts)]  # fmt: skip
+    for proc in procs:  # both say that they wait for the lock's holder, and wait
+        assert any("another build or repair holds the store (held by pid" in line for line in iter(proc.stderr.readline, ""))
+        assert proc.poll() is None
+    holder.communicate("release\n", timeout=30)
+    outs = [p.communicate(timeout=120) for p in procs]
+    assert [p.returncode for p in procs] == [0, 0], outs
+    added = sorted(int(out.split("added ")[-1].split()[0]) for out, _ in outs)
+    assert added == [2, 4]  # the second adds only what the first did not
+    group = zarr.open_group(str(store), mode="r")
+    assert sorted(group["seed"][:]) == list(range(6)) and group.attrs["episodes"] == 6
+    assert verify_store(store).damage == []
