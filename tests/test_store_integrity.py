@@ -4,7 +4,6 @@ plain Zarr readers never see an unfinished append; two conversions into one stor
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import dask.array as da
@@ -180,13 +179,15 @@ def test_two_conversions_into_one_store_both_finish(tmp_path, recorded_logs):
     store = tmp_path / "frames.zarr"
     holder = subprocess.Popen([sys.executable, "-c", (
         "import sys\nfrom dynplan.files import exclusive\n"
-        "with exclusive(sys.argv[1]):\n    print('held', flush=True)\n    sys.stdin.readline()"), str(lock_path(store))],
+        "with exclusive(sys.argv[1]):\n    print('held', flush=True)\n    sys.stdin.readline()"),
+        str(lock_path(store))],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
     assert holder.stdout.readline().strip() == "held"
     procs = [subprocess.Popen([sys.executable, "-c", BUILD, str(store), str(logs)], cwd=ROOT, text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE) for logs in (firsts, lasts)]  # fmt: skip
     for proc in procs:  # both say that they wait for the lock's holder, and wait
-        assert any("another build or repair holds the store (held by pid" in line for line in iter(proc.stderr.readline, ""))
+        waiting = "another build or repair holds the store (held by pid"
+        assert any(waiting in line for line in iter(proc.stderr.readline, ""))
         assert proc.poll() is None
     holder.communicate("release\n", timeout=30)
     outs = [p.communicate(timeout=120) for p in procs]
