@@ -44,14 +44,16 @@ from dynplan.logs.reader import LogError, read_episode_log
 STORE_FORMAT = "dynplan.frames"
 #: 2: checksummed chunks; 1 (without checksums) is read but no longer extended.
 STORE_VERSION = "2"
-def lock_path(store: str | os.PathLike) -> Path:
-    """The store's lock file, beside it (inside, Zarr would warn of a file it does not know)."""
-    store = Path(store)
-    return store.with_name(store.name + ".lock")
 #: Episodes appended per dask computation (bounds memory: 64 × 407 × 48 × 48 B ≈ 60 MB).
 BATCH_EPISODES = 64
 
 ARRAYS = ("frames", "goal", "seed", "log_name", "log_sha256")
+
+
+def lock_path(store: str | os.PathLike) -> Path:
+    """The store's lock file, beside it (inside, Zarr would warn of a file it does not know)."""
+    store = Path(store)
+    return store.with_name(store.name + ".lock")
 
 
 @dataclass(frozen=True)
