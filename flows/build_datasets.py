@@ -23,6 +23,7 @@ from dynplan.data.store import LogInfo, build_frame_store, inspect_for_store, li
 from dynplan.data.verify import verify_store
 from dynplan.files import check_output
 from dynplan.progress import progress
+from flows.cli import add_debug_option, run
 from flows.runners import dask_address, dask_scheduler, task_runner
 
 
@@ -75,6 +76,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--verify", metavar="STORE", help="check every chunk of STORE (and repair it from LOG_DIR)")
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
+    add_debug_option(parser)
     args = parser.parse_args(argv)
     address = dask_address(args.dask_address)
     try:
@@ -113,4 +115,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run(main, "python -m flows.build_datasets")

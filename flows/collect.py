@@ -18,6 +18,7 @@ from dynplan.data.collect import DEFAULT_RECORDING, CollectPlan, record_episode,
 from dynplan.env.config import RoadConfig
 from dynplan.files import check_output
 from dynplan.progress import progress
+from flows.cli import add_debug_option, run
 from flows.runners import dask_address, task_runner
 
 
@@ -56,6 +57,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_debug_option(parser)
     args = parser.parse_args(argv)
     try:
         world = RoadConfig(level=args.level, agent_speed=args.agent_speed)
@@ -73,4 +75,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run(main, "python -m flows.collect")

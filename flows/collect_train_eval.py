@@ -40,6 +40,7 @@ from dynplan.models import pretrained_path
 from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset
 from dynplan.pipeline.report import StageRecord, checkpoint_record, draw_figures, render_report, write_report
 from flows.build_datasets import build_datasets
+from flows.cli import add_debug_option, run
 from flows.collect import collect_episodes
 from flows.evaluate import evaluate_planner
 from flows.runners import dask_address, task_runner
@@ -168,6 +169,7 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--preset", default="quick", choices=sorted(PIPELINE_PRESETS), help="run scale")
     parser.add_argument("--out", default="datasets", help="output folder (default: datasets)")
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    add_debug_option(parser)
     args = parser.parse_args(argv)
     try:
         if Path(args.out).exists() and not Path(args.out).is_dir():
@@ -182,4 +184,4 @@ def main(argv: list[str] | None = None) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    run(main, "python -m flows.collect_train_eval")

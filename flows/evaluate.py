@@ -44,6 +44,7 @@ from dynplan.models.caution import Caution
 from dynplan.models.registry import WORLD_MODELS, world_model_spec
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
+from flows.cli import add_debug_option, run
 from flows.collect import collect_episodes
 from flows.runners import dask_address, task_runner
 
@@ -136,6 +137,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         parser.add_argument(f"--{name}", type=kind, help=field_help(Caution, name, "each configuration's own"))
     parser.add_argument("--workers", type=int, help="episodes played at once locally (default: one per core)")
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
+    add_debug_option(parser)
     args = parser.parse_args(argv)
     overrides = {name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None}
     try:  # the configs' own validation, before any flow machinery starts: one source for every range
@@ -178,4 +180,4 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    run(main, "python -m flows.evaluate")

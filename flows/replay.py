@@ -19,6 +19,7 @@ from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import check_output
 from dynplan.logs.reader import LogError
 from dynplan.models.registry import WORLD_MODELS
+from flows.cli import add_debug_option, run
 
 
 @flow(name="replay-episode", log_prints=True)
@@ -70,6 +71,7 @@ def main(argv: list[str] | None = None) -> dict:
                         "(default: the committed ones)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="seed of the planner's own randomness (>= 0)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_debug_option(parser)
     args = parser.parse_args(argv)
     out = args.out or str(default_outputs(args.log, args.planner, args.model, args.samples, args.futures))
     try:  # fail fast, with one line, before any flow machinery starts
@@ -93,4 +95,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run(main, "python -m flows.replay")

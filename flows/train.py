@@ -30,6 +30,7 @@ from dynplan.training.loop import TrainBudget
 from dynplan.training.pixelcnn import train_pixelcnn
 from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
 from dynplan.training.vqvae import train_vqvae
+from flows.cli import add_debug_option, run
 
 
 def _finished_key(run_dir: Path, kind: str, epochs: int) -> str | None:
@@ -131,6 +132,7 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (same architecture)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
     parser.add_argument("--codes", help="pixelcnn: the store's code array to train on (default: codes_<model>)")
+    add_debug_option(parser)
     args = parser.parse_args(argv)
     codes = args.codes or f"codes_{args.model}"
     try:
@@ -160,4 +162,4 @@ def main(argv: list[str] | None = None) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    run(main, "python -m flows.train")

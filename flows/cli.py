@@ -1,0 +1,116 @@
+"""What every `python -m flows.…` command shares: a temporary Prefect API that dies with the command, and one line,
+not a traceback, for an unexpected error (unless `--debug`).
+
+Without `PREFECT_API_URL`, Prefect starts a temporary API server of its own, which outlives a command killed with
+SIGKILL and may print shutdown errors when it is stopped before Prefect's log and event workers have flushed.
+`temporary_api` starts that server itself, as a child that the kernel signals when the command dies (Linux's
+parent-death signal), points Prefect at it, drains Prefect's workers and only then stops it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager, suppress
+from pathlib import Path
+
+import httpx
+import prefect
+from prefect.settings import PREFECT_API_URL, PREFECT_UI_URL, get_current_settings, temporary_settings
+
+#: Seconds to wait for the temporary server's health check.
+STARTUP_TIMEOUT_S = 120.0
+_PR_SET_PDEATHSIG = 1
+
+
+def add_debug_option(parser: argparse.ArgumentParser) -> None:
+    """The `--debug` option (read by `run`): print the traceback of an unexpected error."""
+    parser.add_argument("--debug", action="store_true", help="print the whole traceback of an unexpected error")
+
+
+def _die_with_parent() -> None:  # runs in the child between fork and exec
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _drain_prefect() -> None:
+    """Let Prefect's background workers send what they hold while the API is still up."""
+    from prefect.events.worker import EventsWorker
+    from prefect.logging.handlers import APILogWorker
+
+    for worker in (APILogWorker, EventsWorker):
+        with suppress(Exception):
+            worker.drain_all(timeout=10)
+
+
+@contextmanager
+def temporary_api() -> Iterator[str | None]:
+    """Within the block, Prefect talks to `PREFECT_API_URL` if set, else to a temporary server of this process's
+    own, stopped after the block (and signalled by the kernel if this process dies first). Yields the API's URL."""
+    if PREFECT_API_URL.value():
+        yield PREFECT_API_URL.value()
+        return
+    port = _free_port()
+    url = f"http://127.0.0.1:{port}/api"
+    env = {**os.environ, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1",
+           **get_current_settings().to_environment_variables(exclude_unset=True)}  # fmt: skip
+    command = [sys.executable, "-m", "uvicorn", "--app-dir", str(Path(prefect.__file__).parent.parent), "--factory",
+               "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(port),
+               "--log-level", "error", "--lifespan", "on"]  # fmt: skip
+    server = subprocess.Popen(command, env=env, preexec_fn=_die_with_parent, stdin=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + STARTUP_TIMEOUT_S
+        with httpx.Client() as client:
+            while True:
+                if server.poll() is not None:
+                    raise RuntimeError(f"the temporary Prefect API server exited with status {server.returncode}")
+                try:
+                    if client.get(f"{url}/health", timeout=2).status_code == 200:
+                        break
+                except httpx.HTTPError:
+                    pass
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"the temporary Prefect API server did not answer within {STARTUP_TIMEOUT_S} s")
+                time.sleep(0.1)
+        with temporary_settings(updates={PREFECT_API_URL: url, PREFECT_UI_URL: ""}):  # the server has no UI
+            try:
+                yield url
+            finally:
+                _drain_prefect()
+    finally:
+        server.terminate()
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+
+
+def run(main: Callable[[list[str] | None], object], prog: str) -> None:
+    """Run a command's `main` against `temporary_api`; an unexpected error is one line on stderr and exit status 1
+    (the traceback with `--debug`), an interrupt exit status 130."""
+    debug = "--debug" in sys.argv[1:]
+    try:
+        with temporary_api():
+            main(None)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; run it again to resume", file=sys.stderr)
+        raise SystemExit(130) from None
+    except Exception as error:
+        if debug:
+            raise
+        print(f"{prog}: error: {type(error).__name__}: {error} (run with --debug for the traceback)", file=sys.stderr)
+        raise SystemExit(1) from None
