@@ -37,8 +37,11 @@ def _finished_key(run_dir: Path, kind: str, epochs: int) -> str | None:
     """Cache only finished runs: a key exists once the run's final checkpoint has the epochs asked for. The key
     is the folder's full path, so each place on disk caches its own run."""
     final = run_dir / f"{kind}.pt"
-    if not final.exists() or checkpoint.load(final, kind)["epoch"] < epochs:
-        return None
+    try:
+        if not final.exists() or checkpoint.load(final, kind)["epoch"] < epochs:
+            return None
+    except checkpoint.UnreadableCheckpoint:
+        return None  # damaged: the task runs, and exports it again from the run's latest checkpoint
     return digest(str(run_dir.resolve()), epochs)
 
 

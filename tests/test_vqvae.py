@@ -174,6 +174,29 @@ def test_training_resumes_after_an_interruption(tmp_path, store):
     assert [row["epoch"] for row in history] == [1, 2, 3]
 
 
+def test_a_truncated_final_checkpoint_is_exported_again_from_the_latest(tmp_path, store):
+    budget = TrainBudget(epochs=2, steps_per_epoch=3, val_frames=20, threads=1)
+    final = train_vqvae(store, tmp_path, TINY, budget)
+    intact = torch.load(final, weights_only=False)
+    final.write_bytes(final.read_bytes()[:4000])
+    with pytest.warns(UserWarning, match="vqvae.pt: not a readable checkpoint .*; exported it again from"):
+        again = train_vqvae(store, tmp_path, TINY, budget)
+    restored = torch.load(again, weights_only=False)
+    assert restored["epoch"] == 2 and restored["history"] == intact["history"]
+    assert all(torch.equal(restored["model"][k], v) for k, v in intact["model"].items())
+    (tmp_path / "checkpoint.pt").unlink()
+    final.write_bytes(b"damaged")
+    with pytest.raises(CheckpointError, match="vqvae.pt: not a readable checkpoint"):
+        train_vqvae(store, tmp_path, TINY, budget)  # nothing to export it from: an error, not a silent retrain
+
+
+def test_a_start_that_fails_leaves_no_run_folder(tmp_path, store):
+    budget = TrainBudget(epochs=1, steps_per_epoch=2, val_frames=20, threads=1, init_from=str(tmp_path / "none.pt"))
+    with pytest.raises(CheckpointError, match="none.pt: no such checkpoint"):
+        train_vqvae(store, tmp_path / "run", TINY, budget)
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_checkpoint_of_another_config_is_refused(tmp_path, store):
     budget = TrainBudget(epochs=1, steps_per_epoch=2, val_frames=20, threads=1)
     path = train_vqvae(store, tmp_path, TINY, budget)
@@ -226,6 +249,22 @@ def test_codes_store_matches_the_encoder_and_is_incremental(tmp_path, store, rec
     assert xr.open_zarr(local)["codes_tiny"].dims == ("episode", "time", "code_y", "code_x")
     context, target = WindowDataset(local, "all", array="codes_tiny")[0]
     assert context.shape == (4, 6, 6) and target.shape == (6, 6)
+
+    # A damaged code chunk is found, its encoding marked undone, and the next encoding redoes it.
+    from dynplan.data.verify import verify_store
+
+    encoded = codes[:]
+    chunk = local / "codes_tiny" / "c" / "4" / "0" / "0" / "0"
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x40
+    chunk.write_bytes(bytes(data))
+    (damage,) = verify_store(local).damage
+    assert (damage.array, damage.chunk, damage.repaired) == ("codes_tiny", "c/4/0/0/0", True)
+    assert "marked undone from episode 4" in damage.describe()
+    assert verify_store(local).damage == []  # nothing left that counts as encoded is damaged
+    build_codes(local, path, "tiny")
+    np.testing.assert_array_equal(zarr.open_group(str(local), mode="r")["codes_tiny"][:], encoded)
+    assert zarr.open_group(str(local), mode="r")["codes_tiny"].attrs["episodes"] == 6
 
 
 def test_load_vqvae_names_what_is_missing(tmp_path, store):

@@ -46,9 +46,10 @@ class Damage:
     episodes: str
     repaired: bool = False
     unrepaired_because: str | None = None
+    action: str = "repaired"
 
     def describe(self) -> str:
-        state = "repaired" if self.repaired else f"not repaired: {self.unrepaired_because or 'no logs given'}"
+        state = self.action if self.repaired else f"not repaired: {self.unrepaired_because or 'no logs given'}"
         return f"array {self.array!r}, chunk {self.chunk} ({self.episodes}): {self.problem}; {state}"
 
 
@@ -209,6 +210,8 @@ class _Repair:
         if item.array.startswith("codes_"):
             self._reset_codes(array, item.rows.start)
             item.repaired = True
+            item.action = (f"its encoding is marked undone from episode {item.rows.start} on; the next "
+                           "`python -m flows.train vqvae` of its model encodes it again")  # fmt: skip
             return
         rows = range(item.rows.start, min(item.rows.stop, self.n))
         infos = []

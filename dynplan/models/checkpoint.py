@@ -26,6 +26,10 @@ class CheckpointError(ValueError):
     """A checkpoint cannot be used here; the message names the file and why."""
 
 
+class UnreadableCheckpoint(CheckpointError):
+    """The file is not a checkpoint torch can read (truncated or damaged)."""
+
+
 def save(path: str | os.PathLike, state: dict[str, Any]) -> Path:
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
@@ -40,7 +44,7 @@ def load(path: str | os.PathLike, kind: str, config: dict | None = None) -> dict
     try:
         state = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as error:  # torch raises many kinds for a damaged file
-        raise CheckpointError(f"{path}: not a readable checkpoint ({type(error).__name__}: {error})") from None
+        raise UnreadableCheckpoint(f"{path}: not a readable checkpoint ({type(error).__name__}: {error})") from None
     if not isinstance(state, dict) or state.get("kind") != kind:
         found = state.get("kind") if isinstance(state, dict) else type(state).__name__
         raise CheckpointError(f"{path}: holds a {found!r} checkpoint, expected {kind!r}")

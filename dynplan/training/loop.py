@@ -13,6 +13,7 @@ import io
 import json
 import os
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -81,8 +82,8 @@ class Stage:
 
 def begin(out_dir: Path, kind: str, config: dict, budget: TrainBudget) -> Path | None:
     """Prepare a run in `out_dir`: return its final checkpoint if it already has the epochs asked for; else set
-    torch's threads and seed — before the stage builds its model, so initialisation is reproducible."""
-    out_dir.mkdir(parents=True, exist_ok=True)
+    torch's threads and seed — before the stage builds its model, so initialisation is reproducible. The folder is
+    made by the run's first write, so a start that fails before training leaves none behind."""
     done = finished(out_dir, kind, config, budget.epochs)
     if done is None:
         if budget.threads:
@@ -92,11 +93,20 @@ def begin(out_dir: Path, kind: str, config: dict, budget: TrainBudget) -> Path |
 
 
 def finished(out_dir: Path, stage_kind: str, config: dict, epochs: int) -> Path | None:
-    """The final checkpoint of a run in `out_dir` if it has at least `epochs` (a config mismatch is an error)."""
-    final = out_dir / f"{stage_kind}.pt"
-    if final.exists() and checkpoint.load(final, stage_kind, config)["epoch"] >= epochs:
-        return final
-    return None
+    """The final checkpoint of a run in `out_dir` if it has at least `epochs` (a config mismatch is an error). A
+    damaged final checkpoint beside a latest one that has the epochs is exported again from it."""
+    final, latest = out_dir / f"{stage_kind}.pt", out_dir / "checkpoint.pt"
+    if not final.exists():
+        return None
+    try:
+        return final if checkpoint.load(final, stage_kind, config)["epoch"] >= epochs else None
+    except checkpoint.UnreadableCheckpoint as error:
+        if latest.exists() and checkpoint.load(latest, stage_kind, config)["epoch"] >= epochs:
+            warnings.warn(f"{error}; exported it again from {latest}", stacklevel=2)
+            return export_weights(latest, final, stage_kind, config)
+        if latest.exists():
+            return None  # training resumes from the latest epoch and writes the final checkpoint again
+        raise
 
 
 def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None) -> Path:
