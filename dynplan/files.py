@@ -63,6 +63,31 @@ _THREADS: dict[str, threading.Lock] = {}
 _THREADS_GUARD = threading.Lock()
 
 
+def _thread_lock(lock_path: Path) -> threading.Lock:
+    with _THREADS_GUARD:
+        return _THREADS.setdefault(str(lock_path.resolve()), threading.Lock())
+
+
+def is_held(lock_path: str | os.PathLike) -> bool:
+    """Whether a writer holds the lock `exclusive(lock_path)` takes right now (another process or thread)."""
+    lock_path = Path(lock_path)
+    thread_lock = _thread_lock(lock_path)
+    if not thread_lock.acquire(blocking=False):
+        return True
+    try:
+        with open(lock_path, "a+") as lock:
+            try:
+                fcntl.lockf(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                return True
+            fcntl.lockf(lock, fcntl.LOCK_UN)
+            return False
+    except FileNotFoundError:
+        return False
+    finally:
+        thread_lock.release()
+
+
 @contextmanager
 def exclusive(lock_path: str | os.PathLike, waiting: str | None = None) -> Iterator[None]:
     """Hold an exclusive lock on `lock_path` (created if missing, never removed) within the block: a POSIX lock,
@@ -71,9 +96,7 @@ def exclusive(lock_path: str | os.PathLike, waiting: str | None = None) -> Itera
     and wait for it."""
     lock_path = Path(lock_path)
     lock_path.parent.mkdir(parents=True, exist_ok=True)
-    with _THREADS_GUARD:
-        thread_lock = _THREADS.setdefault(str(lock_path.resolve()), threading.Lock())
-    with thread_lock, open(lock_path, "a+") as lock:
+    with _thread_lock(lock_path), open(lock_path, "a+") as lock:
         try:
             fcntl.lockf(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:

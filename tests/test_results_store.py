@@ -56,6 +56,28 @@ def test_a_torn_last_row_is_reported_cut_and_played_again(tmp_path):
     assert run.rows() == [row(EVAL_SEED_START), row(EVAL_SEED_START + 1)]
 
 
+def test_a_row_another_writer_is_writing_is_left_out_without_a_warning(tmp_path):
+    import warnings
+
+    run = Run(tmp_path)
+    run.append(row(EVAL_SEED_START))
+    holder = subprocess.Popen([sys.executable, "-c", (
+        "import sys\nfrom dynplan.files import exclusive\n"
+        "with exclusive(sys.argv[1]):\n    print('held', flush=True)\n    sys.stdin.readline()"),
+        str(run.dir / "episodes.lock")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with open(run.episodes_path, "ab") as f:
+            f.write(json.dumps(row(EVAL_SEED_START + 1)).encode()[:40])  # the holder's row, half written
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            assert run.rows() == [row(EVAL_SEED_START)]
+    finally:
+        holder.communicate("done\n", timeout=30)
+    with pytest.warns(TornRowWarning, match="line 2 is torn"):  # its writer is gone: torn
+        run.rows()
+
+
 def test_a_damaged_row_names_the_file_and_line(tmp_path):
     run = Run(tmp_path)
     run.append(row(EVAL_SEED_START))
@@ -154,6 +176,9 @@ def test_legacy_result_folders_import_with_their_provenance(tmp_path):
     path.write_text(json.dumps({**records[0], "seed": EVAL_SEED_START + 7, "margin": 2}))
     with pytest.raises(StoreError, match="mix default caution"):
         import_folder(legacy, Run(tmp_path / "store", "again"), "candidate", [])
+    path.write_text(json.dumps({k: v for k, v in records[0].items() if k not in ("seed", "log_sha256")}))
+    with pytest.raises(StoreError, match=f"{path}: not a per-episode result: it lacks seed, log_sha256"):
+        import_folder(legacy, Run(tmp_path / "store", "third"), "candidate", [])
 
 
 @pytest.mark.slow

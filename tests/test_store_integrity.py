@@ -197,3 +197,10 @@ def test_two_conversions_into_one_store_both_finish(tmp_path, recorded_logs):
     group = zarr.open_group(str(store), mode="r")
     assert sorted(group["seed"][:]) == list(range(6)) and group.attrs["episodes"] == 6
     assert verify_store(store).damage == []
+
+
+def test_a_store_of_another_format_version_is_refused_with_what_to_do(store, recorded_logs):
+    group = zarr.open_group(str(store), mode="r+", use_consolidated=False)
+    group.attrs["format_version"] = "1"
+    with pytest.raises(ValueError, match="format version '1'; this dynplan extends version '?2'? .*build a new one"):
+        build_frame_store_from_logs(store, list_logs(recorded_logs))

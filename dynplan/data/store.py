@@ -141,8 +141,8 @@ def store_problem(store: str | os.PathLike) -> str | None:
         return f"{store}: is a Zarr store but not a dynplan frames store (format {attrs.get('format')!r})"
     if attrs and attrs.get("format_version") != STORE_VERSION:
         return (
-            f"{store}: is a frames store of format version {attrs.get('format_version')!r}, whose chunks carry no "
-            f"checksums; move it aside and build a new one (version {STORE_VERSION}) from its logs"
+            f"{store}: is a frames store of format version {attrs.get('format_version')!r}; this dynplan extends "
+            f"version {STORE_VERSION} (checksummed chunks): move it aside and build a new one from its logs"
         )
     return None
 

@@ -14,9 +14,11 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 
-from dynplan.evaluation.store import ROLES, Run, StoreError, case_key
+from dynplan.evaluation.store import CASE_KEYS, FORMAT, ROLES, Run, StoreError, case_key
 from dynplan.models.caution import Caution
 
+#: Fields every per-episode result holds besides its case (`model` may be null: the oracle's).
+REQUIRED = ("playouts", "log_sha256")
 #: What an imported run's manifest says of its code version: the files never recorded one.
 UNRECORDED = "unrecorded (imported from per-episode result files)"
 
@@ -26,9 +28,13 @@ def read_folder(folder: str | os.PathLike) -> list[dict]:
     rows = []
     for path in sorted(Path(folder).glob("episodes/*/*/seed*.json")):
         try:
-            rows.append(json.loads(path.read_text()))
+            row = json.loads(path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as error:
             raise StoreError(f"{path}: not a JSON result ({error})") from None
+        missing = [k for k in (*CASE_KEYS, *REQUIRED) if not isinstance(row, dict) or k not in row]
+        if missing:
+            raise StoreError(f"{path}: not a per-episode result: it lacks {', '.join(missing)}")
+        rows.append(row)
     return rows
 
 
@@ -51,7 +57,9 @@ def import_folder(folder: str | os.PathLike, run: Run, role: str, commands: list
     world_models = {}
     for model in sorted({r["model"] for r in rows if r.get("model")}):
         mine = [r for r in rows if r.get("model") == model]
-        sha = _one({r["world_model_sha256"] for r in mine}, f"{model} weights", folder)
+        sha = _one({r.get("world_model_sha256") for r in mine}, f"{model} weights", folder)
+        if sha is None:
+            raise StoreError(f"{folder}: the rows of world model {model!r} do not record its weights' SHA-256")
         caution = _one({json.dumps({k: r[k] for k in Caution.model_fields if k in r}) for r in mine},
                        f"{model} caution", folder)  # fmt: skip
         world_models[model] = {"weights_sha256": sha, "weights": list((weights or {}).get(model, [])),
@@ -60,7 +68,7 @@ def import_folder(folder: str | os.PathLike, run: Run, role: str, commands: list
     for r in rows:
         if logs.setdefault(r["seed"], r["log_sha256"]) != r["log_sha256"]:
             raise StoreError(f"{folder}: seed {r['seed']} was played against two different logs")
-    manifest = {"format": "dynplan-run/1", "name": run.name, "role": role, "playouts": playouts,
+    manifest = {"format": FORMAT, "name": run.name, "role": role, "playouts": playouts,
                 "episode_seeds": sorted(logs), "log_sha256": {str(s): h for s, h in sorted(logs.items())},
                 "world_models": world_models,
                 "invocations": [{"command": c, "code_version": UNRECORDED, "started": None}

@@ -25,7 +25,7 @@ from contextlib import AbstractContextManager
 from datetime import datetime, timezone
 from pathlib import Path
 
-from dynplan.files import exclusive, write_bytes_atomic
+from dynplan.files import exclusive, is_held, write_bytes_atomic
 from dynplan.models.caution import Caution
 from dynplan.version import __version__
 
@@ -150,12 +150,15 @@ class Run:
         return exclusive(self._lock_path)
 
     def rows(self) -> list[dict]:
-        """Every row of the run's file, in the order written (stale ones included). A torn last line is reported
-        (TornRowWarning) and left out; a damaged line before the last is a StoreError naming it."""
+        """Every row of the run's file, in the order written (stale ones included). An unfinished last line is left
+        out, and reported (TornRowWarning) unless a writer is at work on it; a damaged line before the last is a
+        StoreError naming it."""
         try:
             data = self.episodes_path.read_bytes()
         except FileNotFoundError:
             return []
+        if data and not data.endswith(b"\n") and is_held(self._lock_path):
+            data = data[: data.rfind(b"\n") + 1]  # another writer's row, still being written
         return _parse(data, self.episodes_path)
 
     def append(self, row: Mapping) -> bool:

@@ -3,7 +3,7 @@
 The paper plans on the greedy (argmax) future alone. Two settings make its frames more cautious, each chosen on
 validation episodes (docs/design.md, occupancy and the lane margin): `occupancy` adds the pixels the prior
 gives at least that probability of holding an obstacle; `margin` widens every predicted obstacle along its lane.
-Kept free of torch so that the evaluation's bookkeeping can read it cheaply.
+The module itself needs only pydantic; the results store reads its fields to know a row's provenance.
 """
 
 from __future__ import annotations
