@@ -41,7 +41,9 @@ from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
+from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.models.world_model import world_model_parts, world_model_paths
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
 from flows.cli import add_debug_option, run
@@ -162,6 +164,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
                 parser.error(f"--occupancy needs patch-local codes; the {model} configuration's tokenizer has none")
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
+    if any(TECHNIQUES[t].world_model for t in args.techniques):
+        for model in args.models:  # missing, damaged, foreign or mismatched weights: one line naming the file
+            try:
+                world_model_parts(world_model_paths(model, args.model_dir), model)
+            except CheckpointError as error:
+                parser.error(f"--model-dir {args.model_dir}: {error}" if args.model_dir else str(error))
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
     if not dask_address(args.dask_address):  # the local pool's episodes share the cores; more threads only contend
         cores = os.cpu_count() or 1

@@ -13,6 +13,7 @@ import pytest
 
 import flows.build_datasets
 import flows.collect
+import flows.evaluate
 import flows.replay
 import flows.train
 from dynplan.data.collect import log_path, record_episode, stale_temporaries
@@ -36,13 +37,22 @@ def inputs(tmp_path_factory):
     (root / "things").mkdir()
     (root / "things" / "notes.txt").write_text("hello")
     (root / "truncated.pt").write_bytes(pretrained_path("pixelcnn", "paper").read_bytes()[:1000])
+    for name, (vqvae, pixelcnn) in {"cut": ("default", None), "pair": ("paper", "default"),
+                                    "kinds": ("default", "vqvae")}.items():  # fmt: skip
+        folder = root / name / "default"
+        folder.mkdir(parents=True)
+        (folder / "vqvae.pt").write_bytes(pretrained_path("vqvae", vqvae).read_bytes())
+        prior = pretrained_path("pixelcnn", "default").read_bytes()[:5000] if pixelcnn is None else (
+            pretrained_path("vqvae", "default") if pixelcnn == "vqvae" else pretrained_path("pixelcnn", pixelcnn)
+        ).read_bytes()  # fmt: skip
+        (folder / "pixelcnn.pt").write_bytes(prior)
     return root
 
 
 #: Imported with the test module, not inside a test: Prefect binds its log handlers to the streams of the moment,
 #: and a test's captured streams close after it.
 MAINS = {"build_datasets": flows.build_datasets.main, "collect": flows.collect.main, "replay": flows.replay.main,
-         "train": flows.train.main}  # fmt: skip
+         "train": flows.train.main, "evaluate": flows.evaluate.main}  # fmt: skip
 
 
 def _main(module: str):
@@ -75,6 +85,18 @@ CASES = [
     ("train", ["pixelcnn", "--init-from", str(pretrained_path("vqvae", "paper"))],
      "holds a 'vqvae' checkpoint, expected 'pixelcnn'"),
     ("train", ["vqvae", "--init-from", "{root}/nowhere.pt"], "--init-from {root}/nowhere.pt: no such checkpoint"),
+    ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/cut"],
+     "--model-dir {root}/cut: {root}/cut/default/pixelcnn.pt: not a readable checkpoint"),
+    ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/pair"],
+     "{root}/pair/default/pixelcnn.pt: predicts 4096 code values, but the tokenizer {root}/pair/default/vqvae.pt has "
+     "512: they are not one world model"),
+    ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/kinds"],
+     "{root}/kinds/default/pixelcnn.pt: holds a 'vqvae' checkpoint, expected 'pixelcnn'"),
+    ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/things"],
+     "no world model checkpoints at {root}/things/default/vqvae.pt"),
+    ("build_datasets", ["--verify", "{root}/things"], "--verify {root}/things: no Zarr store there"),
+    ("build_datasets", ["--verify", "{root}/foreign.zarr"], "not a dynplan frames store (format 'someone.else')"),
+    ("build_datasets", [], "give LOG_DIR, the folder of episode logs (or --verify STORE)"),
 ]  # fmt: skip
 
 

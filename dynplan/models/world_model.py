@@ -184,7 +184,12 @@ def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple
         raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
                               f"`python -m flows.train vqvae|pixelcnn --model {model}` or the collect-train-eval "
                               "flow")  # fmt: skip
-    return checkpoint.cached(checkpoint.VQVAE_KIND, paths[0]), checkpoint.cached(checkpoint.PIXELCNN_KIND, paths[1])
+    tokenizer = checkpoint.cached(checkpoint.VQVAE_KIND, paths[0])
+    prior = checkpoint.cached(checkpoint.PIXELCNN_KIND, paths[1])
+    if tokenizer.config.codebook_size != prior.config.codebook_size:
+        raise CheckpointError(f"{paths[1]}: predicts {prior.config.codebook_size} code values, but the tokenizer "
+                              f"{paths[0]} has {tokenizer.config.codebook_size}: they are not one world model")  # fmt: skip
+    return tokenizer, prior
 
 
 def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0, futures: int = 0,
