@@ -187,8 +187,10 @@ def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple
     tokenizer = checkpoint.cached(checkpoint.VQVAE_KIND, paths[0])
     prior = checkpoint.cached(checkpoint.PIXELCNN_KIND, paths[1])
     if tokenizer.config.codebook_size != prior.config.codebook_size:
-        raise CheckpointError(f"{paths[1]}: predicts {prior.config.codebook_size} code values, but the tokenizer "
-                              f"{paths[0]} has {tokenizer.config.codebook_size}: they are not one world model")  # fmt: skip
+        raise CheckpointError(
+            f"{paths[1]}: predicts {prior.config.codebook_size} code values, but the tokenizer {paths[0]} has "
+            f"{tokenizer.config.codebook_size}: they are not one world model"
+        )
     return tokenizer, prior
 
 
