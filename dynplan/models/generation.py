@@ -59,15 +59,17 @@ class KernelWeights(NamedTuple):
 
 @torch.inference_mode()
 def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature: float = 0.0,
-                  generator: torch.Generator | None = None,
-                  weights: KernelWeights | None = None) -> torch.Tensor:  # fmt: skip
+                  generator: torch.Generator | None = None, weights: KernelWeights | None = None,
+                  uniforms: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
     """The next code grid given `context` (B, 4, h, w): greedy if `temperature` is 0, else sampled.
 
     Same contract as `generate_naive` (the same codes, drawing the same random numbers), at a fraction of the
     cost. `weights`: the model's `kernel_weights`, when the caller keeps them (a frozen model generating many
-    grids); else they are laid out for this call."""
+    grids); else they are laid out for this call. `uniforms` (B, h, w): the numbers to sample with, when the
+    caller draws them (a batch whose rows have random streams of their own); else drawn from `generator`."""
     B, _, H, W = context.shape
-    uniforms = draw_uniforms(B, H, W, temperature, generator)
+    if uniforms is None:
+        uniforms = draw_uniforms(B, H, W, temperature, generator)
     condition = model.condition(context)
     cond_v, cond_h = zip(*(layer.condition(condition).chunk(2, dim=1) for layer in model.layers), strict=True)
 

@@ -22,7 +22,7 @@ chosen on validation episodes.
 from __future__ import annotations
 
 import os
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +33,7 @@ from dynplan.models import checkpoint
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError, pretrained_path
 from dynplan.models.generation import generate_fast, kernel_weights
-from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
 from dynplan.models.registry import caution_for
 from dynplan.models.vqvae import VQVAE
 from dynplan.planning.forward import Prediction, goal_centres
@@ -106,67 +106,137 @@ class LearnedWorldModel:
         return self._code_obstacles
 
     @torch.inference_mode()
-    def obstacle_probability(self, context: torch.Tensor, grids: torch.Tensor) -> np.ndarray:
-        """Per pixel, the prior's probability of an obstacle in each of the k predicted frames, given the
-        observed `context` codes (c, h, w) and, before each position, the greedy `grids` (k, h, w) themselves
-        (one teacher-forced pass over all k frames). Returns float32 (k, H, W)."""
-        windows = torch.cat([context, grids]).unfold(0, self.context, 1)[: len(grids)]  # (k, h, w, c)
-        k, h, w = grids.shape
-        ph, pw = self.tokenizer.patch
-        table = self.code_obstacles()
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)  # the same sums whatever the caller's threads: a result replays exactly
-        try:
-            # Logits only: the training forward also takes a loss and accuracy over all K codes (a fifth of the pass).
-            logits = self.prior.teacher_forced_logits(windows.permute(0, 3, 1, 2), grids)  # (k, h, w, K)
-            probs = torch.softmax(logits, dim=-1)
-            patches = (probs @ table).reshape(k, h, w, ph, pw)
-        finally:
-            torch.set_num_threads(threads)
-        return patches.permute(0, 1, 3, 2, 4).reshape(k, h * ph, w * pw).numpy()
-
-    @torch.inference_mode()
     def encode_context(self, observed: np.ndarray) -> torch.Tensor:
         """The code grids (context, h, w) of the last `context` observed frames."""
-        if len(observed) < self.context:
-            raise ValueError(f"the model needs the last {self.context} frames, got {len(observed)}")
-        return self.tokenizer.encode(torch.from_numpy(np.ascontiguousarray(observed[-self.context :])))
+        return self._encode_contexts([observed])[0]
+
+    def _encode_contexts(self, observed: Sequence[np.ndarray]) -> torch.Tensor:
+        """(E, context, h, w) code grids of the last `context` frames of each of E observations, in one pass."""
+        short = [len(o) for o in observed if len(o) < self.context]
+        if short:
+            raise ValueError(f"the model needs the last {self.context} frames, got {short[0]}")
+        frames = np.stack([o[-self.context :] for o in observed])  # (E, context, H, W)
+        codes = self.tokenizer.encode(torch.from_numpy(np.ascontiguousarray(frames.reshape(-1, *frames.shape[2:]))))
+        return codes.reshape(len(observed), self.context, *codes.shape[1:])
 
     @torch.inference_mode()
     def predict_codes(self, observed: np.ndarray, k: int, futures: int = 1, temperature: float = 0.0) -> torch.Tensor:
         """(futures, k, h, w) code grids of frames t+1 … t+k from the last `context` observed frames: greedy at
         temperature 0 (one future), else `futures` futures sampled at `temperature`."""
-        return self._chain(self.encode_context(observed), k, futures, temperature)
+        context = self.encode_context(observed)[None].expand(futures, -1, -1, -1)
+        return self._chain(context, k, temperature, [(self.generator, k)] if temperature else [])
 
-    def _chain(self, context: torch.Tensor, k: int, futures: int, temperature: float) -> torch.Tensor:
-        context = context[None].expand(futures, -1, -1, -1)
+    def _chain(self, context: torch.Tensor, steps: int, temperature: float = 0.0,
+               streams: Sequence[tuple[torch.Generator, int]] = ()) -> torch.Tensor:  # fmt: skip
+        """(B, steps, h, w): the prior chained `steps` grids ahead from `context` (B, context, h, w), each grid
+        joining the context. Sampled (`temperature` > 0), the rows form one group per stream (generator, k): a
+        group draws its numbers from its own generator, and only for its first k steps, as its episode alone would."""
+        B, _, h, w = context.shape
+        size = B // max(len(streams), 1)
         grids = []
-        for _ in range(k):
-            grid = generate_fast(self.prior, context, temperature, self.generator, self._kernel)  # (futures, h, w)
+        for step in range(steps):
+            uniforms = None
+            if temperature:
+                uniforms = torch.zeros(B, h, w, dtype=torch.float64)
+                for e, (generator, k) in enumerate(streams):
+                    if step < k:
+                        uniforms[e * size : (e + 1) * size] = draw_uniforms(size, h, w, temperature, generator)
+            grid = generate_fast(self.prior, context, temperature, None, self._kernel, uniforms)  # (B, h, w)
             grids.append(grid)
             context = torch.cat([context[:, 1:], grid[:, None]], dim=1)
         return torch.stack(grids, dim=1)
 
+    @property
+    def batch_key(self) -> tuple:
+        """Models with equal keys can predict together (`predict_batch`): the same weights and settings."""
+        return (id(self.tokenizer), id(self.prior), self.samples, self.futures, self.occupancy, self.margin)
+
     @torch.inference_mode()
-    def predict(self, observed: np.ndarray, k: int, samples: int | None = None) -> Prediction:
-        """Frames t+1 … t+k: the greedy future's mid-point, merged with `samples` decoder samples (default: the
-        model's) and with the mid-points of the model's sampled futures."""
-        samples = self.samples if samples is None else samples
-        context = self.encode_context(observed)
-        codes = self._chain(context, k, 1, 0.0)[0]
-        mid, decoded_samples = self.tokenizer.decode_with_samples(codes, samples, self.generator)
-        mid, others = mid.numpy(), [decoded_samples.numpy()] if samples else []
-        if self.occupancy:
-            unsure = self.obstacle_probability(context, codes) >= self.occupancy
-            others.append(np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)[None])
-        if self.futures:
-            sampled = self._chain(context, k, self.futures, 1.0)
-            others.append(self.tokenizer.decode(sampled.flatten(0, 1)).numpy().reshape(self.futures, k, *mid.shape[1:]))
-        if others:
-            mid = merge_samples(mid, np.concatenate(others))
-        if self.margin:
-            mid = widen_obstacles(mid, self.margin)
-        return Prediction.from_frames(mid)
+    def predict(self, observed: np.ndarray, k: int) -> Prediction:
+        """Frames t+1 … t+k: the greedy future's mid-point, merged with the model's decoder samples and with the
+        mid-points of its sampled futures, then its caution applied. The batch of one of `predict_batch`."""
+        return LearnedWorldModel.predict_batch([self], [observed], [k])[0]
+
+    @staticmethod
+    @torch.inference_mode()
+    def predict_batch(models: Sequence[LearnedWorldModel], observed: Sequence[np.ndarray],
+                      ks: Sequence[int]) -> list[Prediction]:  # fmt: skip
+        """Each model's prediction of its own episode (`observed[e]`, `ks[e]` frames ahead), computed together:
+        one encoding, one prior chain, one decoding and one occupancy pass for the whole batch. Each model draws
+        from its own random stream in the order its episode alone would, so a prediction does not depend on which
+        others share its batch (up to float summation order in the batched convolutions). The models must share
+        weights and settings (equal `batch_key`)."""
+        first = models[0]
+        if any(m.batch_key != first.batch_key for m in models):
+            raise ValueError("predict_batch: the models differ in weights or settings; group them by batch_key")
+        if not len(models) == len(observed) == len(ks):
+            raise ValueError(f"predict_batch: {len(models)} models, {len(observed)} observations, {len(ks)} horizons")
+        if min(ks) < 1:
+            raise ValueError(f"predict_batch: every horizon must be >= 1, got {min(ks)}")
+        tokenizer, E = first.tokenizer, len(models)
+        context = first._encode_contexts(observed)  # (E, context, h, w)
+        greedy = first._chain(context, max(ks))  # (E, max k, h, w): causal, so each episode's first k are its own
+        offsets = np.cumsum([0, *ks])
+        codes = torch.cat([greedy[e, :k] for e, k in enumerate(ks)])  # (Σk, h, w)
+        params = tokenizer.decode_params(codes)
+        mid = tokenizer.pixel.mid(params).numpy()
+        others: list[list[np.ndarray]] = [[] for _ in range(E)]
+        if first.samples:
+            for e, model in enumerate(models):
+                part = params[offsets[e] : offsets[e + 1]]
+                others[e].append(torch.stack([tokenizer.pixel.sample(part, model.generator)
+                                              for _ in range(first.samples)]).numpy())  # fmt: skip
+        if first.occupancy:
+            probability = first._obstacle_probabilities(context, greedy, ks)
+            for e in range(E):
+                unsure = probability[offsets[e] : offsets[e + 1]] >= first.occupancy
+                others[e].append(np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)[None])
+        if first.futures:
+            F = first.futures
+            streams = [(m.generator, k) for m, k in zip(models, ks, strict=True)]
+            sampled = first._chain(context.repeat_interleave(F, dim=0), max(ks), 1.0, streams)
+            sampled = sampled.reshape(E, F, *sampled.shape[1:])  # (E, F, max k, h, w)
+            decoded = tokenizer.decode(torch.cat([sampled[e, :, :k].flatten(0, 1) for e, k in enumerate(ks)]))
+            start = 0
+            for e, k in enumerate(ks):
+                others[e].append(decoded[start : start + F * k].numpy().reshape(F, k, *mid.shape[1:]))
+                start += F * k
+        predictions = []
+        for e in range(E):
+            frames = mid[offsets[e] : offsets[e + 1]]
+            if others[e]:
+                frames = merge_samples(frames, np.concatenate(others[e]))
+            if first.margin:
+                frames = widen_obstacles(frames, first.margin)
+            predictions.append(Prediction.from_frames(frames))
+        return predictions
+
+    def _obstacle_probabilities(self, context: torch.Tensor, greedy: torch.Tensor, ks: Sequence[int]) -> np.ndarray:
+        """(Σk, H, W) float32: per pixel, the prior's probability of an obstacle in each predicted frame of each
+        episode, given its observed `context` codes and, before each position, its greedy grids themselves: one
+        teacher-forced pass over every episode's frames (patch-local codes only)."""
+        windows = torch.cat(
+            [torch.cat([context[e], greedy[e, :k]]).unfold(0, self.context, 1)[:k] for e, k in enumerate(ks)]
+        )  # fmt: skip  (Σk, h, w, c)
+        grids = torch.cat([greedy[e, :k] for e, k in enumerate(ks)])
+        n, h, w = grids.shape
+        ph, pw = self.tokenizer.patch
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)  # the same sums whatever the caller's threads: a result replays exactly
+        try:
+            # Logits only: the training forward also takes a loss and accuracy over all K codes (a fifth of the pass).
+            logits = self.prior.teacher_forced_logits(windows.permute(0, 3, 1, 2), grids)  # (Σk, h, w, K)
+            patches = (torch.softmax(logits, dim=-1) @ self.code_obstacles()).reshape(n, h, w, ph, pw)
+        finally:
+            torch.set_num_threads(threads)
+        return patches.permute(0, 1, 3, 2, 4).reshape(n, h * ph, w * pw).numpy()
+
+    @torch.inference_mode()
+    def obstacle_probability(self, context: torch.Tensor, grids: torch.Tensor) -> np.ndarray:
+        """Per pixel, the prior's probability of an obstacle in each of the k predicted frames, given the
+        observed `context` codes (c, h, w) and, before each position, the greedy `grids` (k, h, w) themselves
+        (one teacher-forced pass over all k frames). Returns float32 (k, H, W)."""
+        return self._obstacle_probabilities(context[None], grids[None], [len(grids)])
 
 
 def world_model_paths(model: str, model_dir: str | os.PathLike | None = None) -> tuple[Path, Path]:

@@ -1,6 +1,6 @@
 """Planning against a predicted future: the forward-model seam, PUCT MCTS and the episode loop (docs/protocol.md §3)."""
 
-from dynplan.planning.episode import EpisodeResult, run_episode
+from dynplan.planning.episode import EpisodeResult, run_episode, run_episodes
 from dynplan.planning.forward import ForwardModel, OracleModel, Prediction, ZeroModel, goal_centres
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
 
@@ -15,4 +15,5 @@ __all__ = [
     "ZeroModel",
     "goal_centres",
     "run_episode",
+    "run_episodes",
 ]

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,33 +40,99 @@ def run_episode(
     rollout_steps: int = 1,
     on_decision: DecisionHook | None = None,
 ) -> EpisodeResult:
-    """Play `world` (e.g. read from a log) at `agent_speed` until goal, death or timeout.
+    """Play `world` (e.g. read from a log) at `agent_speed` until goal, death or timeout: the batch of one of
+    `run_episodes`.
 
     Each decision asks `model` for the next `rollout_steps` frames given the frames observed so far — fewer near
     the end: never past frame T − 1, where the episode times out — (a random planner needs no model) and times
     prediction plus search together.
     """
-    config = RoadConfig.from_dict(world.config.model_dump(), agent_speed=agent_speed)
-    env = RoadEnv(config=config)
-    env.reset(options={"world": world})
-    planner.reset()
-    times: list[float] = []
-    t_list, positions, actions, rewards, outcomes = [env.t], [env.position.copy()], [], [], []
-    reward, outcome = 0.0, "running"
-    while outcome == "running":
+    hook = None if on_decision is None else (lambda i, *args: on_decision(*args))
+    return run_episodes([world], [planner], [model], agent_speed, rollout_steps, hook)[0]
+
+
+#: Called after each decision of episode i with (i, t, position, prediction, decision).
+BatchDecisionHook = Callable[[int, int, np.ndarray, Prediction | None, Decision], None]
+
+
+def _predict(models: Sequence[ForwardModel], observed: Sequence[np.ndarray], ks: Sequence[int]) -> list[Prediction]:
+    """Each model's prediction of its own episode; models that predict in batches (a `batch_key` and a static
+    `predict_batch`, e.g. the learned world model) are asked once per group of equal keys."""
+    out: list[Prediction | None] = [None] * len(models)
+    groups: dict[object, list[int]] = {}
+    for i, model in enumerate(models):
+        key = getattr(model, "batch_key", None)
+        if key is None:
+            out[i] = model.predict(observed[i], ks[i])
+        else:
+            groups.setdefault((type(model), key), []).append(i)
+    for (kind, _), members in groups.items():
+        predictions = kind.predict_batch([models[i] for i in members], [observed[i] for i in members],
+                                         [ks[i] for i in members])  # fmt: skip
+        for i, prediction in zip(members, predictions, strict=True):
+            out[i] = prediction
+    return out  # type: ignore[return-value]
+
+
+def run_episodes(
+    worlds: Sequence[World],
+    planners: Sequence[MCTSPlanner | RandomPlanner],
+    models: Sequence[ForwardModel | None],
+    agent_speed: float,
+    rollout_steps: int = 1,
+    on_decision: BatchDecisionHook | None = None,
+    on_finish: Callable[[int, EpisodeResult], None] | None = None,
+) -> list[EpisodeResult]:
+    """Play many episodes in lockstep, episode i with `planners[i]` against `models[i]`: at each step every live
+    episode's prediction is asked for at once (one batched world-model call per group of models that share
+    weights and settings), each planner then chooses, all step, and finished episodes leave the batch
+    (`on_finish(i, result)` is called as each does). The world does not depend on the agent, and each model and
+    planner keeps its own random stream, so an episode's result does not depend on which others share its batch.
+    An episode's decision time is its share of the batched prediction plus its own search."""
+    if not len(worlds) == len(planners) == len(models):
+        raise ValueError(f"run_episodes: {len(worlds)} worlds, {len(planners)} planners, {len(models)} models")
+    envs, configs = [], []
+    for world, planner in zip(worlds, planners, strict=True):
+        config = RoadConfig.from_dict(world.config.model_dump(), agent_speed=agent_speed)
+        env = RoadEnv(config=config)
+        env.reset(options={"world": world})
+        planner.reset()
+        envs.append(env)
+        configs.append(config)
+    n = len(worlds)
+    times: list[list[float]] = [[] for _ in range(n)]
+    tracks = [([env.t], [env.position.copy()], [], [], []) for env in envs]
+    results: list[EpisodeResult | None] = [None] * n
+    live = list(range(n))
+    while live:
         start = time.perf_counter()
-        horizon = min(rollout_steps, config.max_steps - 1 - env.t)  # nothing after the timeout frame counts
-        prediction = model.predict(world.frames[: env.t + 1], horizon) if model is not None else None
-        decision = planner.act(env.position, env.t, prediction)
-        times.append((time.perf_counter() - start) * 1e3)
-        if on_decision is not None:
-            on_decision(env.t, env.position.copy(), prediction, decision)
-        _, reward, _, _, info = env.step(decision.action)
-        outcome = info["outcome"]
-        t_list.append(env.t)
-        positions.append(env.position.copy())
-        actions.append(decision.action)
-        rewards.append(reward)
-        outcomes.append(outcome)
-    track = AgentTrack(np.array(t_list), np.array(positions), np.array(actions), np.array(rewards), tuple(outcomes))
-    return EpisodeResult(world.seed, outcome, len(actions), float(reward), times, track)
+        horizons = {i: min(rollout_steps, configs[i].max_steps - 1 - envs[i].t) for i in live}
+        asking = [i for i in live if models[i] is not None]
+        predictions = dict(zip(asking, _predict([models[i] for i in asking],
+                                                [worlds[i].frames[: envs[i].t + 1] for i in asking],
+                                                [horizons[i] for i in asking]), strict=True))  # fmt: skip
+        shared = (time.perf_counter() - start) * 1e3 / len(live)
+        finished = []
+        for i in live:
+            env, (t_list, positions, actions, rewards, outcomes) = envs[i], tracks[i]
+            start = time.perf_counter()
+            decision = planners[i].act(env.position, env.t, predictions.get(i))
+            times[i].append(shared + (time.perf_counter() - start) * 1e3)
+            if on_decision is not None:
+                on_decision(i, env.t, env.position.copy(), predictions.get(i), decision)
+            _, reward, _, _, info = env.step(decision.action)
+            t_list.append(env.t)
+            positions.append(env.position.copy())
+            actions.append(decision.action)
+            rewards.append(reward)
+            outcomes.append(info["outcome"])
+            if info["outcome"] != "running":
+                track = AgentTrack(np.array(t_list), np.array(positions), np.array(actions), np.array(rewards),
+                                   tuple(outcomes))  # fmt: skip
+                results[i] = EpisodeResult(worlds[i].seed, info["outcome"], len(actions), float(reward), times[i],
+                                           track)  # fmt: skip
+                finished.append(i)
+                if on_finish is not None:
+                    on_finish(i, results[i])
+        live = [i for i in live if i not in finished]
+    return results  # type: ignore[return-value]
