@@ -35,7 +35,7 @@ from dynplan.evaluation.cases import (
     Case,
     cases,
 )
-from dynplan.evaluation.protocol import pending, run_case
+from dynplan.evaluation.protocol import pending, run_cases
 from dynplan.evaluation.provenance import begin_run
 from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
@@ -52,8 +52,8 @@ from flows.runners import dask_address, task_runner
 
 DEFAULT_COMMAND = "python -m flows.evaluate"
 RESULTS_DIR = "datasets/results"
-#: Episodes between rewrites of the table while an evaluation runs.
-TABLE_EVERY = 25
+#: Episodes per lockstep batch (one task): two batches of a 100-episode case keep two workers busy.
+BATCH = 50
 
 
 def run_role(run: str, first_seed: int) -> str:
@@ -64,10 +64,20 @@ def run_role(run: str, first_seed: int) -> str:
     return "evaluation" if run == EVALUATION_RUN else "candidate"
 
 
-@task(name="evaluate-episode", cache_policy=NO_CACHE)
-def evaluate_case_task(case: dict, log_dir: str, results_dir: str, run: str, playouts: int,
-                       model_dir: str | None = None, caution: dict[str, float] | None = None) -> dict:  # fmt: skip
-    return run_case(Case(**case), log_dir, Run(results_dir, run), playouts, model_dir, caution)
+@task(name="evaluate-episodes", cache_policy=NO_CACHE)
+def evaluate_cases_task(cases: list[dict], log_dir: str, results_dir: str, run: str, playouts: int,
+                        model_dir: str | None = None, caution: dict | None = None) -> list[dict]:  # fmt: skip
+    """Play a batch of cases in lockstep; each row is appended as its episode finishes."""
+    return run_cases([Case(**c) for c in cases], log_dir, Run(results_dir, run), playouts, model_dir, caution)
+
+
+def batches(todo: list[Case], size: int) -> list[list[Case]]:
+    """The cases in batches of at most `size` that play in lockstep: one technique, world model, agent speed and k
+    each (so a batch shares one world model and one horizon)."""
+    groups: dict[tuple, list[Case]] = {}
+    for case in todo:
+        groups.setdefault((case.technique, case.model, case.agent_speed, case.rollout_steps), []).append(case)
+    return [group[i : i + size] for group in groups.values() for i in range(0, len(group), size)]
 
 
 @flow(name="evaluate-planner", log_prints=True)
@@ -77,8 +87,10 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      results_dir: str = RESULTS_DIR, command: str = DEFAULT_COMMAND,
                      models: list[str] | None = None, model_dir: str | None = None,
                      first_seed: int = EVAL_SEED_START,
-                     caution: dict[str, float] | None = None, run: str = EVALUATION_RUN) -> list[dict]:  # fmt: skip
-    """Play the cases `run` lacks and write the aggregated table. Learned techniques use the committed weights, or
+                     caution: dict[str, float] | None = None, run: str = EVALUATION_RUN,
+                     batch: int = BATCH) -> list[dict]:  # fmt: skip
+    """Play the cases `run` lacks, in lockstep batches of up to `batch` episodes (one Prefect task each), and write
+    the aggregated table. Learned techniques use the committed weights, or
     those under `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution`
     (field → value) overrides it. Episodes are seeds `first_seed` … (the evaluation's by default)."""
     techniques = techniques or ["oracle", "zero", "random"]
@@ -88,14 +100,15 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                       episodes, first_seed, tuple(models or ["default"]))  # fmt: skip
     begin_run(store_run, run_role(run, first_seed), all_cases, log_dir, playouts, command, model_dir, caution)
     todo = pending(all_cases, store_run, log_dir, playouts, model_dir, caution)
-    print(f"{len(todo)} episodes to play into {store_run.dir}")
-    futures = evaluate_case_task.map([asdict(c) for c in todo], unmapped(log_dir), unmapped(results_dir),
-                                     unmapped(run), unmapped(playouts), unmapped(model_dir),
-                                     unmapped(caution))  # fmt: skip
+    work = batches(todo, batch)
+    print(f"{len(todo)} episodes to play into {store_run.dir}, in {len(work)} lockstep batches")
+    futures = evaluate_cases_task.map([[asdict(c) for c in b] for b in work], unmapped(log_dir), unmapped(results_dir),
+                                      unmapped(run), unmapped(playouts), unmapped(model_dir),
+                                      unmapped(caution))  # fmt: skip
     role = store_run.manifest()["role"]
-    for done, future in enumerate(progress(as_completed(futures), total=len(futures), description="evaluate"), 1):
+    for future in progress(as_completed(futures), total=len(futures), description="evaluate batches"):
         future.result()
-        if role == "evaluation" and done % TABLE_EVERY == 0:  # a stopped evaluation still leaves an up-to-date table
+        if role == "evaluation":  # a stopped evaluation still leaves an up-to-date table
             write_table(aggregate(load_results(results_dir)), results_dir)
     if role == "evaluation":
         write_table(aggregate(load_results(results_dir)), results_dir)
@@ -137,7 +150,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
                         f"{VALIDATION_SEED_START:,}: the validation episodes)")  # fmt: skip
     for name, kind in (("occupancy", float), ("margin", int)):  # the caution's fields, ranges and words
         parser.add_argument(f"--{name}", type=kind, help=field_help(Caution, name, "each configuration's own"))
-    parser.add_argument("--workers", type=int, help="episodes played at once locally (default: one per core)")
+    parser.add_argument("--workers", type=int, help="batches played at once locally (default: one per core)")
+    parser.add_argument("--batch", type=int, default=BATCH, help=f"episodes per lockstep batch, in [1, 10000] "
+                        f"(default {BATCH})")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     add_debug_option(parser)
     args = parser.parse_args(argv)
@@ -164,6 +179,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
                 parser.error(f"--occupancy needs patch-local codes; the {model} configuration's tokenizer has none")
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
+    if not 1 <= args.batch <= 10_000:
+        parser.error(f"--batch={args.batch} is invalid; valid range [1, 10000]")
     if any(TECHNIQUES[t].world_model for t in args.techniques):
         for model in args.models:  # missing, damaged, foreign or mismatched weights: one line naming the file
             try:
@@ -180,7 +197,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
         caution=overrides or None,
-        run=args.run,
+        run=args.run, batch=args.batch,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))

@@ -1,13 +1,14 @@
-"""Playing the evaluation's cases (docs/protocol.md §4): each case's agent, one episode played into its run of the
-results store (`run_case`), what a resumed run still has to play (`pending`), and one episode on its own
-(`plan_episode`). The cases live in `cases.py`, what results depend on in `provenance.py`, the rows in `store.py`.
+"""Playing the evaluation's cases (docs/protocol.md §4): each case's agent, cases played in lockstep into their run
+of the results store (`run_cases`, `run_case`), what a resumed run still has to play (`pending`), and one episode
+on its own (`plan_episode`). The cases live in `cases.py`, what results depend on in `provenance.py`, the rows in
+`store.py`.
 """
 
 from __future__ import annotations
 
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict
 
 import numpy as np
@@ -20,7 +21,7 @@ from dynplan.evaluation.provenance import provenance as case_provenance
 from dynplan.evaluation.store import Run, code_version
 from dynplan.evaluation.techniques import AgentInputs, technique
 from dynplan.logs.reader import LogError, read_episode_log
-from dynplan.planning.episode import EpisodeResult, run_episode
+from dynplan.planning.episode import EpisodeResult, run_episode, run_episodes
 from dynplan.planning.forward import ForwardModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
 
@@ -59,33 +60,53 @@ def plan_episode(world: World | int, technique_name: str = "samples5", model: st
 
 def run_case(case: Case, log_dir: str | os.PathLike, run: Run, playouts: int = 100, model_dir: str | None = None,
              caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
-    """Play one case against its recorded episode and append its row to `run` — or return the run's row of it, if
-    one was played with the same playouts, against the same log and (learned techniques) the same weights and
+    """Play one case against its recorded episode and append its row to `run` (the batch of one of `run_cases`)."""
+    return run_cases([case], log_dir, run, playouts, model_dir, caution)[0]
+
+
+def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playouts: int = 100,
+              model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> list[dict]:  # fmt: skip
+    """Play `cases` against their recorded episodes in lockstep (`run_episodes`; one batch per agent speed and k)
+    and append each one's row to `run` the moment its episode finishes — or return the run's row of a case, if one
+    was played with the same playouts, against the same log and (learned techniques) the same weights and
     caution. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`); `caution`:
-    what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05})."""
-    provenance = case_provenance(case, log_dir, playouts, model_dir, caution)
-    existing = run.find(asdict(case), provenance)
-    if existing is not None:
-        return existing
-    source = log_path(log_dir, case.seed)
-    start = time.perf_counter()
-    log = read_episode_log(source)
-    if log.seed != case.seed:
-        raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {case.seed}")
-    world = log.world()
-    planner, model = case_agent(case, world, playouts, model_dir, caution)
-    result = run_episode(world, planner, model, case.agent_speed, case.rollout_steps or 1)
-    record = {
-        **asdict(case),
-        "outcome": result.outcome,
-        "steps": result.steps,
-        **provenance,
-        "decision_ms": [round(ms, 4) for ms in result.decision_ms],
-        "wall_s": round(time.perf_counter() - start, 4),
-        "code_version": code_version(),
-    }
-    run.append(record)
-    return record
+    what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05}). A row's
+    `wall_s` is its episode's share of the batch: reading its log, building its agent and its decisions."""
+    rows: list[dict | None] = [None] * len(cases)
+    todo: dict[tuple, list[int]] = {}
+    provenances = [case_provenance(case, log_dir, playouts, model_dir, caution) for case in cases]
+    for i, case in enumerate(cases):
+        rows[i] = run.find(asdict(case), provenances[i])
+        if rows[i] is None:
+            todo.setdefault((case.agent_speed, case.rollout_steps or 1), []).append(i)
+    for (agent_speed, k), members in todo.items():
+        worlds, agents, setup_s = [], [], []
+        for i in members:
+            start = time.perf_counter()
+            source = log_path(log_dir, cases[i].seed)
+            log = read_episode_log(source)
+            if log.seed != cases[i].seed:
+                raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {cases[i].seed}")
+            worlds.append(log.world())
+            agents.append(case_agent(cases[i], worlds[-1], playouts, model_dir, caution))
+            setup_s.append(time.perf_counter() - start)
+
+        def finish(j: int, result: EpisodeResult, members: list[int] = members, setup_s: list[float] = setup_s) -> None:
+            i = members[j]
+            rows[i] = {
+                **asdict(cases[i]),
+                "outcome": result.outcome,
+                "steps": result.steps,
+                **provenances[i],
+                "decision_ms": [round(ms, 4) for ms in result.decision_ms],
+                "wall_s": round(setup_s[j] + sum(result.decision_ms) / 1e3, 4),
+                "code_version": code_version(),
+            }
+            run.append(rows[i])
+
+        planners, models = zip(*agents, strict=True)
+        run_episodes(worlds, planners, models, agent_speed, k, on_finish=finish)
+    return rows  # type: ignore[return-value]
 
 
 def pending(all_cases: list[Case], run: Run, log_dir: str | os.PathLike, playouts: int = 100,

@@ -22,6 +22,7 @@ chosen on validation episodes.
 from __future__ import annotations
 
 import os
+import weakref
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -32,7 +33,7 @@ from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models import checkpoint
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError, pretrained_path
-from dynplan.models.generation import generate_fast, kernel_weights
+from dynplan.models.generation import KernelWeights, generate_fast, kernel_weights
 from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
 from dynplan.models.registry import caution_for
 from dynplan.models.vqvae import VQVAE
@@ -71,6 +72,17 @@ def widen_obstacles(frames: np.ndarray, margin: int) -> np.ndarray:
     return np.where(widened > 0, widened, frames)
 
 
+_KERNELS: weakref.WeakKeyDictionary[ConditionalPixelCNN, KernelWeights] = weakref.WeakKeyDictionary()
+
+
+def _frozen_kernel(prior: ConditionalPixelCNN) -> KernelWeights:
+    """The prior's weights laid out for generation, once per prior: a world model never trains its prior, and an
+    evaluation builds one model per episode on the same prior."""
+    if prior not in _KERNELS:
+        _KERNELS[prior] = kernel_weights(prior)
+    return _KERNELS[prior]
+
+
 class LearnedWorldModel:
     """Forward model from a trained tokenizer and prior. `predict` takes the observed frames (at least the
     last 4) and returns uint8 (k, H, W) frames as the planner sees them."""
@@ -94,7 +106,7 @@ class LearnedWorldModel:
             f"model(samples={samples}, futures={futures}" + "".join(f", {k}={v}" for k, v in caution.items() if v) + ")"
         )
         self.context = prior.config.context
-        self._kernel = kernel_weights(self.prior)  # the prior is frozen here: lay its weights out once
+        self._kernel = _frozen_kernel(self.prior)
         self._code_obstacles: torch.Tensor | None = None
 
     @torch.inference_mode()
