@@ -167,7 +167,8 @@ def test_the_kernels_weights_are_named_as_the_kernel_takes_them_and_follow_the_m
     from dynplan.models.generation import KernelWeights, _generate_grid, generate_fast, kernel_weights
 
     params = list(inspect.signature(_generate_grid.py_func).parameters)
-    assert params[:4] == ["cond_v", "cond_h", "temperature", "uniforms"] and params[4:] == list(KernelWeights._fields)
+    inputs = ["cond_v", "cond_h", "temperature", "uniforms", "table", "expected"]
+    assert params[:6] == inputs and params[6:] == list(KernelWeights._fields)
     torch.manual_seed(0)
     model = ConditionalPixelCNN(SMALL.model_copy(update={"codebook_size": 16})).eval()
     context = torch.randint(0, 16, (2, 4, 6, 6))

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from dynplan.bench.data import bench_data
 from dynplan.bench.decision import bench_decision
+from dynplan.bench.evaluation import bench_evaluation
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.pipeline import bench_pipeline
@@ -29,6 +30,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "prior": bench_prior,
     "generation": bench_generation,
     "decision": bench_decision,
+    "evaluation": bench_evaluation,
     "pipeline": bench_pipeline,
 }
 

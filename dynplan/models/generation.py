@@ -60,13 +60,17 @@ class KernelWeights(NamedTuple):
 @torch.inference_mode()
 def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature: float = 0.0,
                   generator: torch.Generator | None = None, weights: KernelWeights | None = None,
-                  uniforms: torch.Tensor | None = None) -> torch.Tensor:  # fmt: skip
+                  uniforms: torch.Tensor | None = None,
+                  table: np.ndarray | None = None) -> torch.Tensor | tuple[torch.Tensor, np.ndarray]:  # fmt: skip
     """The next code grid given `context` (B, 4, h, w): greedy if `temperature` is 0, else sampled.
 
     Same contract as `generate_naive` (the same codes, drawing the same random numbers), at a fraction of the
     cost. `weights`: the model's `kernel_weights`, when the caller keeps them (a frozen model generating many
     grids); else they are laid out for this call. `uniforms` (B, h, w): the numbers to sample with, when the
-    caller draws them (a batch whose rows have random streams of their own); else drawn from `generator`."""
+    caller draws them (a batch whose rows have random streams of their own); else drawn from `generator`.
+    `table` (K, P) float32: also return, per position, Σ_q softmax(logits)_q · table[q] (B, h, w, P) — e.g. the
+    probability of an obstacle in each pixel of the position's patch — from the logits the generation computes
+    anyway (what a teacher-forced pass over the generated grid would give, up to float summation order)."""
     B, _, H, W = context.shape
     if uniforms is None:
         uniforms = draw_uniforms(B, H, W, temperature, generator)
@@ -77,9 +81,11 @@ def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature
         return np.ascontiguousarray(torch.stack(parts).permute(0, 1, 3, 4, 2).numpy(), dtype=np.float32)
 
     weights = kernel_weights(model) if weights is None else weights
+    lookup = np.zeros((0, 1), np.float32) if table is None else np.ascontiguousarray(table.T, dtype=np.float32)
+    expected = np.zeros((B, H, W, lookup.shape[0]), np.float32)
     codes = _generate_grid(channels_last(cond_v), channels_last(cond_h), float(temperature), uniforms.numpy(),
-                           *weights)  # fmt: skip
-    return torch.from_numpy(codes)
+                           lookup, expected, *weights)  # fmt: skip
+    return torch.from_numpy(codes) if table is None else (torch.from_numpy(codes), expected)
 
 
 def _taps(weight: torch.Tensor, mask_a: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -153,6 +159,22 @@ def _add_scaled(acc, weights, x):
                 acc[o] += row[o] * value
 
 
+@numba.njit(cache=True, fastmath=True)
+def _expected(logits, top, table, probs, out):
+    """out[p] = Σ_q softmax(logits)_q · table[p, q] for table (P, K) (vectorised: its sums' order is the compiler's,
+    fixed for a build)."""
+    total = np.float32(0.0)
+    for q in range(logits.shape[0]):
+        probs[q] = np.exp(logits[q] - top)
+        total += probs[q]
+    scale = np.float32(1.0) / total
+    for p in range(table.shape[0]):
+        acc = np.float32(0.0)
+        for q in range(logits.shape[0]):
+            acc += probs[q] * table[p, q]
+        out[p] = acc * scale
+
+
 @numba.njit(cache=True, inline="always")
 def _inverse_transform(logits, temperature, u, cdf):
     """The first code whose cumulative softmax weight (at `temperature`, in float64) exceeds u · total."""
@@ -169,14 +191,15 @@ def _inverse_transform(logits, temperature, u, cdf):
 
 
 @numba.njit(cache=True, nogil=True)  # episodes on a thread pool generate in parallel
-def _generate_grid(cond_v, cond_h, temperature, uniforms, v_offsets, v_weight, v_taps, v_bias, v2h_weight,
-                   v2h_bias, h_offsets, h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1, w2, b2,
-                   embed):  # fmt: skip
+def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, v_offsets, v_weight, v_taps, v_bias,
+                   v2h_weight, v2h_bias, h_offsets, h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1,
+                   w2, b2, embed):  # fmt: skip
     """Generation of whole code grids (compiled): vertical stacks row by row, horizontal stacks and the head
     position by position; each code the argmax (temperature 0) or drawn by inverse transform of the softmax at
     `temperature` with that position's number from `uniforms` (B, H, W) — as `pixelcnn.pick` does.
 
     cond_v, cond_h: (L, B, H, W, 2C) each layer's conditioning for its vertical and horizontal gates
+    table (P, K): with rows, `expected` (B, H, W, P) receives Σ_q softmax(logits)_q · table[:, q] at each position
     v_offsets (L, T, 2) / v_weight (L, T, C, 2C) / v_taps (L,): each layer's vertical taps, (row, col) offsets
     h_offsets (L, T) / h_weight (L, T, C, 2C) / h_taps (L,): horizontal taps, column offsets
     *_weight of 1 × 1 convolutions and the head: (C_in, C_out); embed (K, C)
@@ -195,6 +218,7 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, v_offsets, v_weight, v
     hidden = np.zeros(w1.shape[1], np.float32)
     logits = np.zeros(w2.shape[1], np.float32)
     cdf = np.zeros(w2.shape[1], np.float64)
+    probs = np.zeros(w2.shape[1], np.float32)
     for b in range(B):
         x[:] = 0.0
         v_in[:] = 0.0
@@ -238,6 +262,8 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, v_offsets, v_weight, v
                 logits[:] = b2
                 _add_scaled(logits, w2, hidden)
                 code = np.argmax(logits)
+                if table.shape[0] > 0:
+                    _expected(logits, logits[code], table, probs, expected[b, i, j])
                 if temperature > 0.0:
                     code = _inverse_transform(logits, temperature, uniforms[b, i, j], cdf)
                 codes[b, i, j] = code

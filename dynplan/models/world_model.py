@@ -139,12 +139,15 @@ class LearnedWorldModel:
         return self._chain(context, k, temperature, [(self.generator, k)] if temperature else [])
 
     def _chain(self, context: torch.Tensor, steps: int, temperature: float = 0.0,
-               streams: Sequence[tuple[torch.Generator, int]] = ()) -> torch.Tensor:  # fmt: skip
+               streams: Sequence[tuple[torch.Generator, int]] = (),
+               occupancy: list | None = None) -> torch.Tensor:  # fmt: skip
         """(B, steps, h, w): the prior chained `steps` grids ahead from `context` (B, context, h, w), each grid
         joining the context. Sampled (`temperature` > 0), the rows form one group per stream (generator, k): a
-        group draws its numbers from its own generator, and only for its first k steps, as its episode alone would."""
+        group draws its numbers from its own generator, and only for its first k steps, as its episode alone would.
+        With an `occupancy` list, each step's per-pixel obstacle probability (B, H, W) is appended to it."""
         B, _, h, w = context.shape
         size = B // max(len(streams), 1)
+        table = None if occupancy is None else self.code_obstacles().numpy()
         grids = []
         for step in range(steps):
             uniforms = None
@@ -153,7 +156,11 @@ class LearnedWorldModel:
                 for e, (generator, k) in enumerate(streams):
                     if step < k:
                         uniforms[e * size : (e + 1) * size] = draw_uniforms(size, h, w, temperature, generator)
-            grid = generate_fast(self.prior, context, temperature, None, self._kernel, uniforms)  # (B, h, w)
+            grid = generate_fast(self.prior, context, temperature, None, self._kernel, uniforms, table)  # (B, h, w)
+            if occupancy is not None:
+                grid, expected = grid
+                ph, pw = self.tokenizer.patch
+                occupancy.append(expected.reshape(B, h, w, ph, pw).transpose(0, 1, 3, 2, 4).reshape(B, h * ph, w * pw))
             grids.append(grid)
             context = torch.cat([context[:, 1:], grid[:, None]], dim=1)
         return torch.stack(grids, dim=1)
@@ -187,7 +194,9 @@ class LearnedWorldModel:
             raise ValueError(f"predict_batch: every horizon must be >= 1, got {min(ks)}")
         tokenizer, E = first.tokenizer, len(models)
         context = first._encode_contexts(observed)  # (E, context, h, w)
-        greedy = first._chain(context, max(ks))  # (E, max k, h, w): causal, so each episode's first k are its own
+        occupancy: list[np.ndarray] | None = [] if first.occupancy else None
+        greedy = first._chain(context, max(ks), occupancy=occupancy)  # (E, max k, h, w): causal, so each episode's
+        # first k are its own; the occupancy comes from the same pass's logits
         offsets = np.cumsum([0, *ks])
         codes = torch.cat([greedy[e, :k] for e, k in enumerate(ks)])  # (Σk, h, w)
         params = tokenizer.decode_params(codes)
@@ -198,10 +207,10 @@ class LearnedWorldModel:
                 part = params[offsets[e] : offsets[e + 1]]
                 others[e].append(torch.stack([tokenizer.pixel.sample(part, model.generator)
                                               for _ in range(first.samples)]).numpy())  # fmt: skip
-        if first.occupancy:
-            probability = first._obstacle_probabilities(context, greedy, ks)
-            for e in range(E):
-                unsure = probability[offsets[e] : offsets[e + 1]] >= first.occupancy
+        if occupancy is not None:
+            probability = np.stack(occupancy, axis=1)  # (E, max k, H, W)
+            for e, k in enumerate(ks):
+                unsure = probability[e, :k] >= first.occupancy
                 others[e].append(np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)[None])
         if first.futures:
             F = first.futures
