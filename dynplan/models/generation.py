@@ -190,38 +190,13 @@ def _inverse_transform(logits, temperature, u, cdf):
     return logits.shape[0] - 1
 
 
-#: Outputs updated per pass of `_add_scaled_rows`: a block of every row's accumulators stays in the L1 cache while
-#: the weight rows stream past it (the head's 4,096 logits per row would not).
-_BLOCK = 1024
-
-
-@numba.njit(cache=True, inline="always")
-def _add_scaled_rows(acc, weights, x):
-    """acc[b] += weightsᵀ · x[b] for every row b, weights (n_in, n_out): each weight row is read once for all rows
-    (a matrix–matrix product, blocked over the outputs), and each output's sum runs over the inputs in the order
-    `_add_scaled` gives it alone."""
-    n_out = acc.shape[1]
-    for start in range(0, n_out, _BLOCK):
-        stop = min(start + _BLOCK, n_out)
-        for c in range(x.shape[1]):
-            row = weights[c, start:stop]
-            for b in range(x.shape[0]):
-                value = x[b, c]
-                if value != 0.0:  # exact: adding w · 0 changes nothing (ReLU outputs are often zero)
-                    target = acc[b, start:stop]
-                    for o in range(target.shape[0]):
-                        target[o] += row[o] * value
-
-
-@numba.njit(cache=True, nogil=True)  # batches on a thread pool generate in parallel
+@numba.njit(cache=True, nogil=True)  # episodes on a thread pool generate in parallel
 def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, v_offsets, v_weight, v_taps, v_bias,
                    v2h_weight, v2h_bias, h_offsets, h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1,
                    w2, b2, embed):  # fmt: skip
-    """Generation of whole code grids for a batch (compiled): vertical stacks row by row, horizontal stacks and the
-    head position by position, every batch row at once (each weight row read once per position for the whole
-    batch; each row's arithmetic in the order it has alone); each code the argmax (temperature 0) or drawn by
-    inverse transform of the softmax at `temperature` with that position's number from `uniforms` (B, H, W) — as
-    `pixelcnn.pick` does.
+    """Generation of whole code grids (compiled): vertical stacks row by row, horizontal stacks and the head
+    position by position; each code the argmax (temperature 0) or drawn by inverse transform of the softmax at
+    `temperature` with that position's number from `uniforms` (B, H, W) — as `pixelcnn.pick` does.
 
     cond_v, cond_h: (L, B, H, W, 2C) each layer's conditioning for its vertical and horizontal gates
     table (P, K): with rows, `expected` (B, H, W, P) receives Σ_q softmax(logits)_q · table[:, q] at each position
@@ -232,75 +207,65 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, v_off
     """
     L, B, H, W, C2 = cond_v.shape
     C = C2 // 2
-    K = w2.shape[1]
     codes = np.zeros((B, H, W), np.int64)
-    x = np.zeros((B, H, W, C), np.float32)  # embedded codes generated so far: input of layer 0's stacks
-    v_in = np.zeros((L, B, H, W, C), np.float32)  # input of each layer's vertical stack (layer 0 reads x)
-    h = np.zeros((L + 1, B, W, C), np.float32)  # the current row's horizontal features; h[0] unused (x)
-    to_h = np.zeros((L, B, W, C2), np.float32)
-    acc = np.zeros((B, C2), np.float32)
-    out = np.zeros((B, C), np.float32)
-    gated = np.zeros((B, C), np.float32)
-    hidden = np.zeros((B, w1.shape[1]), np.float32)
-    logits = np.zeros((B, K), np.float32)
-    cdf = np.zeros(K, np.float64)
-    probs = np.zeros(K, np.float32)
-    source = np.zeros((B, C), np.float32)
-    for i in range(H):
-        for layer in range(L):
-            for j in range(W):
-                for b in range(B):
-                    acc[b] = v_bias[layer]
-                for t in range(v_taps[layer]):
-                    r, c = i + v_offsets[layer, t, 0], j + v_offsets[layer, t, 1]
-                    if r >= 0 and 0 <= c < W:
-                        for b in range(B):
-                            source[b] = x[b, r, c] if layer == 0 else v_in[layer, b, r, c]
-                        _add_scaled_rows(acc, v_weight[layer, t], source)
-                for b in range(B):
+    x = np.zeros((H, W, C), np.float32)  # embedded codes generated so far: input of layer 0's stacks
+    v_in = np.zeros((L, H, W, C), np.float32)  # input of each layer's vertical stack (layer 0 reads x)
+    h = np.zeros((L + 1, W, C), np.float32)  # the current row's horizontal features; h[0] unused (x)
+    to_h = np.zeros((L, W, C2), np.float32)
+    acc = np.zeros(C2, np.float32)
+    out = np.zeros(C, np.float32)
+    gated = np.zeros(C, np.float32)
+    hidden = np.zeros(w1.shape[1], np.float32)
+    logits = np.zeros(w2.shape[1], np.float32)
+    cdf = np.zeros(w2.shape[1], np.float64)
+    probs = np.zeros(w2.shape[1], np.float32)
+    for b in range(B):
+        x[:] = 0.0
+        v_in[:] = 0.0
+        for i in range(H):
+            for layer in range(L):
+                source = x if layer == 0 else v_in[layer]
+                for j in range(W):
+                    acc[:] = v_bias[layer]
+                    for t in range(v_taps[layer]):
+                        r, c = i + v_offsets[layer, t, 0], j + v_offsets[layer, t, 1]
+                        if r >= 0 and 0 <= c < W:
+                            _add_scaled(acc, v_weight[layer, t], source[r, c])
                     if layer + 1 < L:
                         for c in range(C):
-                            a = acc[b, c] + cond_v[layer, b, i, j, c]
-                            g = acc[b, C + c] + cond_v[layer, b, i, j, C + c]
-                            v_in[layer + 1, b, i, j, c] = np.tanh(a) / (1.0 + np.exp(-g))
-                    to_h[layer, b, j] = v2h_bias[layer]
-                _add_scaled_rows(to_h[layer, :, j], v2h_weight[layer], acc)
-        for j in range(W):
-            for layer in range(L):
-                for b in range(B):
+                            a = acc[c] + cond_v[layer, b, i, j, c]
+                            g = acc[C + c] + cond_v[layer, b, i, j, C + c]
+                            v_in[layer + 1, i, j, c] = np.tanh(a) / (1.0 + np.exp(-g))
+                    to_h[layer, j] = v2h_bias[layer]
+                    _add_scaled(to_h[layer, j], v2h_weight[layer], acc)
+            for j in range(W):
+                for layer in range(L):
+                    source = x[i] if layer == 0 else h[layer]
                     for o in range(C2):
-                        acc[b, o] = h_bias[layer, o] + (to_h[layer, b, j, o] + cond_h[layer, b, i, j, o])
-                for t in range(h_taps[layer]):
-                    c = j + h_offsets[layer, t]
-                    if c >= 0:
-                        for b in range(B):
-                            source[b] = x[b, i, c] if layer == 0 else h[layer, b, c]
-                        _add_scaled_rows(acc, h_weight[layer, t], source)
-                for b in range(B):
+                        acc[o] = h_bias[layer, o] + (to_h[layer, j, o] + cond_h[layer, b, i, j, o])
+                    for t in range(h_taps[layer]):
+                        c = j + h_offsets[layer, t]
+                        if c >= 0:
+                            _add_scaled(acc, h_weight[layer, t], source[c])
                     for c in range(C):
-                        gated[b, c] = np.tanh(acc[b, c]) / (1.0 + np.exp(-acc[b, C + c]))
-                    out[b] = out_bias[layer]
-                _add_scaled_rows(out, out_weight[layer], gated)
-                for b in range(B):
+                        gated[c] = np.tanh(acc[c]) / (1.0 + np.exp(-acc[C + c]))
+                    out[:] = out_bias[layer]
+                    _add_scaled(out, out_weight[layer], gated)
                     for c in range(C):
-                        residual_in = (x[b, i, j, c] if layer == 0 else h[layer, b, j, c]) if residual[layer] else 0.0
-                        h[layer + 1, b, j, c] = out[b, c] + residual_in
-            for b in range(B):
+                        h[layer + 1, j, c] = out[c] + (source[j, c] if residual[layer] else 0.0)
                 for c in range(C):
-                    gated[b, c] = max(h[L, b, j, c], 0.0)
-                hidden[b] = b1
-            _add_scaled_rows(hidden, w1, gated)
-            for b in range(B):
-                for o in range(hidden.shape[1]):
-                    hidden[b, o] = max(hidden[b, o], 0.0)
-                logits[b] = b2
-            _add_scaled_rows(logits, w2, hidden)
-            for b in range(B):
-                code = np.argmax(logits[b])
+                    gated[c] = max(h[L, j, c], 0.0)
+                hidden[:] = b1
+                _add_scaled(hidden, w1, gated)
+                for o in range(hidden.shape[0]):
+                    hidden[o] = max(hidden[o], 0.0)
+                logits[:] = b2
+                _add_scaled(logits, w2, hidden)
+                code = np.argmax(logits)
                 if table.shape[0] > 0:
-                    _expected(logits[b], logits[b, code], table, probs, expected[b, i, j])
+                    _expected(logits, logits[code], table, probs, expected[b, i, j])
                 if temperature > 0.0:
-                    code = _inverse_transform(logits[b], temperature, uniforms[b, i, j], cdf)
+                    code = _inverse_transform(logits, temperature, uniforms[b, i, j], cdf)
                 codes[b, i, j] = code
-                x[b, i, j] = embed[code]
+                x[i, j] = embed[code]
     return codes
