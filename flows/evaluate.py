@@ -1,9 +1,10 @@
 """`python -m flows.evaluate`: the paper's Table 1 protocol over recorded evaluation episodes.
 
 Records the evaluation episodes if they are missing (seeds 1,000,000 …), plays every (technique, agent speed,
-rollout steps, episode) case as its own Prefect task into a named run of the results store
-(`RESULTS_DIR/runs/RUN/`: a manifest and one JSON line per episode) — skipping cases the run already holds, so an
-interrupted evaluation resumes — then aggregates the evaluation runs into table1.json / table1.md. The run
+rollout steps, episode) case into a named run of the results store (`RESULTS_DIR/runs/RUN/`: a manifest and one
+JSON line per episode), the episodes of a technique, model, speed and k in lockstep batches of up to `--batch`, one
+Prefect task each — skipping cases the run already holds and appending each row as its episode finishes, so an
+interrupted evaluation resumes per episode — then aggregates the evaluation runs into table1.json / table1.md. The run
 `evaluation` is Table 1's; `--first-seed 2000000` with another `--log-dir` and `--run` plays the validation
 episodes instead, where a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`); any
 other run on the evaluation episodes is a candidate's.
