@@ -1,4 +1,5 @@
-"""Play one episode of a recorded world with a planner and a forward model — the unit of evaluation."""
+"""Play recorded worlds with planners and forward models: many episodes in lockstep (`run_episodes`), one world-model
+call per step for all of them, or one episode on its own (`run_episode`, the batch of one)."""
 
 from __future__ import annotations
 
