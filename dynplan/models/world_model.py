@@ -232,32 +232,23 @@ class LearnedWorldModel:
             predictions.append(Prediction.from_frames(frames))
         return predictions
 
-    def _obstacle_probabilities(self, context: torch.Tensor, greedy: torch.Tensor, ks: Sequence[int]) -> np.ndarray:
-        """(Σk, H, W) float32: per pixel, the prior's probability of an obstacle in each predicted frame of each
-        episode, given its observed `context` codes and, before each position, its greedy grids themselves: one
-        teacher-forced pass over every episode's frames (patch-local codes only)."""
-        windows = torch.cat(
-            [torch.cat([context[e], greedy[e, :k]]).unfold(0, self.context, 1)[:k] for e, k in enumerate(ks)]
-        )  # fmt: skip  (Σk, h, w, c)
-        grids = torch.cat([greedy[e, :k] for e, k in enumerate(ks)])
-        n, h, w = grids.shape
+    @torch.inference_mode()
+    def obstacle_probability(self, context: torch.Tensor, grids: torch.Tensor) -> np.ndarray:
+        """Per pixel, the prior's probability of an obstacle in each of the k predicted frames, given the observed
+        `context` codes (c, h, w) and, before each position, the greedy `grids` (k, h, w) themselves: one
+        teacher-forced pass over all k frames (what `predict` takes from the generation's own logits instead).
+        Returns float32 (k, H, W)."""
+        windows = torch.cat([context, grids]).unfold(0, self.context, 1)[: len(grids)]  # (k, h, w, c)
+        k, h, w = grids.shape
         ph, pw = self.tokenizer.patch
         threads = torch.get_num_threads()
         torch.set_num_threads(1)  # the same sums whatever the caller's threads: a result replays exactly
         try:
-            # Logits only: the training forward also takes a loss and accuracy over all K codes (a fifth of the pass).
-            logits = self.prior.teacher_forced_logits(windows.permute(0, 3, 1, 2), grids)  # (Σk, h, w, K)
-            patches = (torch.softmax(logits, dim=-1) @ self.code_obstacles()).reshape(n, h, w, ph, pw)
+            logits = self.prior.teacher_forced_logits(windows.permute(0, 3, 1, 2), grids)  # (k, h, w, K)
+            patches = (torch.softmax(logits, dim=-1) @ self.code_obstacles()).reshape(k, h, w, ph, pw)
         finally:
             torch.set_num_threads(threads)
-        return patches.permute(0, 1, 3, 2, 4).reshape(n, h * ph, w * pw).numpy()
-
-    @torch.inference_mode()
-    def obstacle_probability(self, context: torch.Tensor, grids: torch.Tensor) -> np.ndarray:
-        """Per pixel, the prior's probability of an obstacle in each of the k predicted frames, given the
-        observed `context` codes (c, h, w) and, before each position, the greedy `grids` (k, h, w) themselves
-        (one teacher-forced pass over all k frames). Returns float32 (k, H, W)."""
-        return self._obstacle_probabilities(context[None], grids[None], [len(grids)])
+        return patches.permute(0, 1, 3, 2, 4).reshape(k, h * ph, w * pw).numpy()
 
 
 def world_model_paths(model: str, model_dir: str | os.PathLike | None = None) -> tuple[Path, Path]:
