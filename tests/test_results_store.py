@@ -227,3 +227,21 @@ def test_a_run_keeps_its_playouts_and_a_replaced_file_is_read_anew(tmp_path):
     replaced.replace(run.episodes_path)  # another file at the same path, longer than the one indexed
     assert not run.append(row(EVAL_SEED_START + 3))  # seen in the new file, not written twice
     assert len(run.rows()) == 5
+
+
+def test_two_runs_compare_case_by_case(tmp_path):
+    from dynplan.evaluation.compare import compare_runs, main
+
+    seeds = (EVAL_SEED_START, EVAL_SEED_START + 1, EVAL_SEED_START + 2)
+    a, b = Run(tmp_path / "one", "first"), Run(tmp_path / "two", "second")
+    for run in (a, b):
+        begin(run, seeds=seeds)
+    for seed in seeds:
+        a.append(row(seed, decision_ms=[2.0]))
+        b.append(row(seed, outcome="death" if seed == seeds[1] else "goal", decision_ms=[1.0]))
+    result = compare_runs(a, b)["oracle - speed 1.0 k 3"]
+    assert result == {"cases": 3, "outcome_or_steps_differ": 1, "differing_seeds": [seeds[1]], "provenance_differs": 0,
+                      "goals": [3, 2], "median_decision_ms": [2.0, 1.0]}  # fmt: skip
+    assert main([str(tmp_path / "one"), "first", str(tmp_path / "two"), "second"]) == compare_runs(a, b)
+    with pytest.raises(SystemExit):
+        main([str(tmp_path / "one"), "first", str(tmp_path / "two"), "nowhere"])
