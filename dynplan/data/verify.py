@@ -75,7 +75,7 @@ def _code_arrays(group: zarr.Group) -> list[str]:
     return sorted(name for name in group.array_keys() if name.startswith("codes_"))
 
 
-def _column(store: str, array: zarr.Array, n: int, bad: set[str]) -> list:
+def _column(array: zarr.Array, n: int, bad: set[str]) -> list:
     """The first `n` values of a 1-D array, None where its chunk is damaged."""
     values: list = [None] * n
     for chunk in chunks(array, n):
@@ -114,20 +114,17 @@ def verify_store(store: str | os.PathLike, logs: Logs | None = None, repair: boo
         for name in progress(names, total=len(names), description="verify"):
             array = group[name]
             rows = int(array.attrs.get("episodes", n)) if name.startswith("codes_") else n
-            problems = []
             if not is_checksummed(array):
-                problems.append((None, "its chunks carry no checksum, so damage cannot be detected"))
+                problem = "its chunks carry no checksum, so damage cannot be detected"
+                report.damage.append(Damage(name, "-", range(0, 0), problem, "every episode"))
+            found[name] = []
             for chunk in chunks(array, rows):
                 report.chunks += 1
                 problem = chunk_problem(store, array, chunk)
                 if problem:
-                    problems.append((chunk, problem))
-            found[name] = [(c, p) for c, p in problems if c is not None]
-            for chunk, problem in problems:
-                if chunk is None:
-                    report.damage.append(Damage(name, "-", range(0, 0), problem, "every episode"))
-        bad = {name: {c.key for c, _ in found.get(name, [])} for name in names}
-        identity = {name: _column(store, group[name], n, bad[name]) for name in ("seed", "log_name", "log_sha256")
+                    found[name].append((chunk, problem))
+        bad = {name: {c.key for c, _ in found[name]} for name in names}
+        identity = {name: _column(group[name], n, bad[name]) for name in ("seed", "log_name", "log_sha256")
                     if name in group and group[name].shape[0] >= n}  # fmt: skip
 
         def describe(rows: range) -> str:
