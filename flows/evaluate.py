@@ -44,7 +44,7 @@ from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.registry import WORLD_MODELS, world_model_spec
-from dynplan.models.world_model import world_model_parts, world_model_paths
+from dynplan.models.world_model import check_device, world_model_parts, world_model_paths
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
 from flows.cli import add_debug_option, run
@@ -67,9 +67,11 @@ def run_role(run: str, first_seed: int) -> str:
 
 @task(name="evaluate-episodes", cache_policy=NO_CACHE)
 def evaluate_cases_task(cases: list[dict], log_dir: str, results_dir: str, run: str, playouts: int,
-                        model_dir: str | None = None, caution: dict | None = None) -> list[dict]:  # fmt: skip
+                        model_dir: str | None = None, caution: dict | None = None,
+                        device: str = "cpu") -> list[dict]:  # fmt: skip
     """Play a batch of cases in lockstep; each row is appended as its episode finishes."""
-    return run_cases([Case(**c) for c in cases], log_dir, Run(results_dir, run), playouts, model_dir, caution)
+    return run_cases([Case(**c) for c in cases], log_dir, Run(results_dir, run), playouts, model_dir, caution,
+                     device)  # fmt: skip
 
 
 def batches(todo: list[Case], size: int) -> list[list[Case]]:
@@ -89,11 +91,12 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      models: list[str] | None = None, model_dir: str | None = None,
                      first_seed: int = EVAL_SEED_START,
                      caution: dict[str, float] | None = None, run: str = EVALUATION_RUN,
-                     batch: int = BATCH) -> list[dict]:  # fmt: skip
+                     batch: int = BATCH, device: str = "cpu") -> list[dict]:  # fmt: skip
     """Play the cases `run` lacks, in lockstep batches of up to `batch` episodes (one Prefect task each), and write
     the aggregated table. Learned techniques use the committed weights, or
     those under `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution`
-    (field → value) overrides it. Episodes are seeds `first_seed` … (the evaluation's by default)."""
+    (field → value) overrides it, generating their batches on `device`. Episodes are seeds `first_seed` … (the
+    evaluation's by default)."""
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=first_seed)
     store_run = Run(results_dir, run)
@@ -105,7 +108,7 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
     print(f"{len(todo)} episodes to play into {store_run.dir}, in {len(work)} lockstep batches")
     futures = evaluate_cases_task.map([[asdict(c) for c in b] for b in work], unmapped(log_dir), unmapped(results_dir),
                                       unmapped(run), unmapped(playouts), unmapped(model_dir),
-                                      unmapped(caution))  # fmt: skip
+                                      unmapped(caution), unmapped(device))  # fmt: skip
     role = store_run.manifest()["role"]
     for future in progress(as_completed(futures), total=len(futures), description="evaluate batches"):
         future.result()
@@ -154,6 +157,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--workers", type=int, help="batches played at once locally (default: one per core)")
     parser.add_argument("--batch", type=int, default=BATCH, help=f"episodes per lockstep batch, in [1, 10000] "
                         f"(default {BATCH})")  # fmt: skip
+    parser.add_argument("--device", default="cpu", help="where learned world models generate their batches: cpu "
+                        "or cuda[:N] (default cpu)")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     add_debug_option(parser)
     args = parser.parse_args(argv)
@@ -182,6 +187,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     if not 1 <= args.batch <= 10_000:
         parser.error(f"--batch={args.batch} is invalid; valid range [1, 10000]")
+    try:
+        check_device(args.device)
+    except ValueError as error:
+        parser.error(f"--device: {error}")
     if any(TECHNIQUES[t].world_model for t in args.techniques):
         for model in args.models:  # missing, damaged, foreign or mismatched weights: one line naming the file
             try:
@@ -198,7 +207,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
         caution=overrides or None,
-        run=args.run, batch=args.batch,
+        run=args.run, batch=args.batch, device=args.device,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))

@@ -102,6 +102,21 @@ def test_likelihoods_score_the_truth_best():
     assert torch.equal(Categorical().mid(logits), frames)
 
 
+@pytest.mark.parametrize("likelihood", [Categorical(), DMoL(n_mix=3)])
+def test_decoder_samples_follow_the_likelihood_and_many_at_once_are_many_one_at_a_time(likelihood):
+    torch.manual_seed(0)
+    params = torch.randn(2, likelihood.channels, 3, 4) * 2
+    if isinstance(likelihood, Categorical):  # the frequencies of 4,000 samples against the softmax
+        drawn = likelihood.sample_with(params, likelihood.noise(params.shape, 4000, torch.Generator().manual_seed(1)))
+        counts = torch.stack([(drawn == v).float().mean(0) for v in WORLD_VALUES], dim=1)  # (2, 7, 3, 4)
+        assert (counts - torch.softmax(params, dim=1)).abs().max() < 0.035
+    many = likelihood.sample_with(params, likelihood.noise(params.shape, 5, torch.Generator().manual_seed(2)))
+    generator = torch.Generator().manual_seed(2)
+    assert torch.equal(many, torch.stack([likelihood.sample(params, generator) for _ in range(5)]))
+    assert many.shape == (5, 2, 3, 4) and len(many.unique()) > 1
+    assert set(many.unique().tolist()) <= set(WORLD_VALUES)
+
+
 def test_ema_quantizer_learns_and_restarts_dead_codes():
     torch.manual_seed(0)
     vq = VectorQuantizer(8, 2, ema=True, restart_dead=True).train()

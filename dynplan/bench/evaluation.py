@@ -16,7 +16,7 @@ from dynplan.evaluation.protocol import case_agent
 from dynplan.planning.episode import run_episode, run_episodes
 
 #: (case name, agent speed, k, episodes): the 1× agent's episodes are longer and k = 10 chains ten grids a decision.
-CASES = (("samples5_default_2x_k3", 1.0, 3, 20), ("samples5_default_1x_k10", 0.5, 10, 6))
+CASES = (("samples5_default_2x_k3", 1.0, 3, 100), ("samples5_default_1x_k10", 0.5, 10, 10))
 
 
 def bench_evaluation(episodes: int | None = None, threads: int = 2) -> dict[str, dict[str, float]]:

@@ -32,10 +32,12 @@ def case_agent(
     playouts: int = 100,
     model_dir: str | None = None,
     caution: Mapping[str, float] | None = None,
+    device: str = "cpu",
 ) -> tuple[MCTSPlanner | RandomPlanner, ForwardModel | None]:
     """The planner and forward model that play `case` on its recorded `world`. `caution`: what overrides a learned
-    model's configuration's own (field → value)."""
-    model = technique(case.technique).forward(AgentInputs(world, case.model, case.planner_seed(), model_dir, caution))
+    model's configuration's own (field → value); `device`: where a learned model generates batches."""
+    inputs = AgentInputs(world, case.model, case.planner_seed(), model_dir, caution, device)
+    model = technique(case.technique).forward(inputs)
     if case.rollout_steps is None:
         return RandomPlanner(case.planner_seed()), model
     config = MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts)
@@ -65,12 +67,15 @@ def run_case(case: Case, log_dir: str | os.PathLike, run: Run, playouts: int = 1
 
 
 def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playouts: int = 100,
-              model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> list[dict]:  # fmt: skip
+              model_dir: str | None = None, caution: Mapping[str, float] | None = None,
+              device: str = "cpu") -> list[dict]:  # fmt: skip
     """Play `cases` against their recorded episodes in lockstep (`run_episodes`; one batch per agent speed and k)
     and append each one's row to `run` the moment its episode finishes — or return the run's row of a case, if one
     was played with the same playouts, against the same log and (learned techniques) the same weights and
     caution. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`); `caution`:
-    what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05}). A row's
+    what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05}); `device`:
+    where learned models generate (not part of a row's provenance: the same arithmetic, up to float summation
+    order). A row's
     `wall_s` is its episode's share of the batch: reading its log, building its agent and its decisions."""
     rows: list[dict | None] = [None] * len(cases)
     todo: dict[tuple, list[int]] = {}
@@ -88,7 +93,7 @@ def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playo
             if log.seed != cases[i].seed:
                 raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {cases[i].seed}")
             worlds.append(log.world())
-            agents.append(case_agent(cases[i], worlds[-1], playouts, model_dir, caution))
+            agents.append(case_agent(cases[i], worlds[-1], playouts, model_dir, caution, device))
             setup_s.append(time.perf_counter() - start)
 
         def finish(j: int, result: EpisodeResult, members: list[int] = members, setup_s: list[float] = setup_s) -> None:

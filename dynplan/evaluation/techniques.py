@@ -21,13 +21,15 @@ from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
 class AgentInputs:
     """What a technique may build its forward model from: the recorded world (the oracle reads its future), the
     world-model configuration of a learned technique, the planner's seed, where a pipeline's own weights are
-    (None: the committed ones) and what overrides the configuration's caution."""
+    (None: the committed ones), what overrides the configuration's caution and where a learned model generates
+    ("cpu" or "cuda")."""
 
     world: World
     model: str | None = None
     seed: int = 0
     model_dir: str | os.PathLike | None = None
     caution: Mapping[str, float] | None = None
+    device: str = "cpu"
 
 
 @dataclass(frozen=True)
@@ -45,21 +47,22 @@ class Technique:
 
 
 def learned_model(model: str, samples: int, seed: int, futures: int = 0, model_dir: str | os.PathLike | None = None,
-                  caution: Mapping[str, float] | None = None) -> ForwardModel:  # fmt: skip
+                  caution: Mapping[str, float] | None = None, device: str = "cpu") -> ForwardModel:  # fmt: skip
     """The learned forward model of configuration `model` (weights loaded once per content; see
     `world_model_paths`), with the configuration's own caution except where `caution` (field → value) overrides
-    it."""
+    it, generating batches on `device`."""
     from dynplan.models.registry import caution_for
     from dynplan.models.world_model import LearnedWorldModel, world_model_parts, world_model_paths
 
     parts = world_model_parts(world_model_paths(model, None if model_dir is None else str(model_dir)), model)
     return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed,
-                             **caution_for(model, caution).model_dump())  # fmt: skip
+                             **caution_for(model, caution).model_dump(), device=device)  # fmt: skip
 
 
 def _learned(samples: int, futures: int) -> Callable[[AgentInputs], ForwardModel]:
     def build(inputs: AgentInputs) -> ForwardModel:
-        return learned_model(inputs.model, samples, inputs.seed, futures, inputs.model_dir, inputs.caution)
+        return learned_model(inputs.model, samples, inputs.seed, futures, inputs.model_dir, inputs.caution,
+                             inputs.device)  # fmt: skip
 
     return build
 

@@ -323,9 +323,7 @@ class VQVAE(nn.Module):
         """codes (N, …) → the mid-point frames (N, H, W) and n samples per frame (n, N, H, W), uint8, from one
         pass of the decoder (what the planner's *N samples* variants need)."""
         params = self.decode_params(codes)
-        samples = [self.pixel.sample(params, generator) for _ in range(n)]
-        empty = torch.empty(0, *params.shape[:1], *params.shape[2:], dtype=torch.uint8)
-        return self.pixel.mid(params), torch.stack(samples) if samples else empty
+        return self.pixel.mid(params), self.pixel.sample_with(params, self.pixel.noise(params.shape, n, generator))
 
 
 def _array_in(x, name: str, method: str, expect: str, dims: tuple[int, int],

@@ -1,0 +1,197 @@
+"""Batched autoregressive generation for the conditional gated PixelCNN: many grids at once, position by position.
+
+`generation.generate_fast` runs one compiled kernel per grid of a batch: every product is a matrix–vector
+product, and a batch costs its size times one grid. Here the batch is the matrix: at each position, each layer's
+horizontal stack and the head are one matrix–matrix product over all B grids (B × 32 · 32 × 4096 for the
+default prior's head); each layer's vertical stack is one product per row over the B · w windows; the softmax
+against the occupancy table is one vectorised pass and one product over (B, K). Per-operator overhead is paid
+once per position, not per grid, so the cost per grid falls with B until the arithmetic dominates; and the same
+code runs on a GPU (`device`).
+
+The caching is `generate_fast`'s (as in Fast PixelCNN++): the conditioning once per grid, the vertical stacks
+once per row, the horizontal stacks and the head once per position. The arithmetic is the network's own; the
+order of float sums is the matrix library's, so a choice can differ from the kernel's where two codes' logits
+tie to rounding (how often is measured in docs/design.md §4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
+
+#: The most grids generated together: larger batches run in blocks of this many rows. On a 2-core CPU the cost per
+#: grid of the default prior falls to 128 rows and rises beyond (the working set leaves the caches).
+BLOCK_ROWS = 128
+
+
+@dataclass(frozen=True)
+class BatchedWeights:
+    """A prior's weights laid out for `generate_batched` on one device, built once per model by
+    `batched_weights`: per layer, the masked vertical kernel (2C, C, rows, cols), the horizontal taps as one matrix
+    ((half + 1) · C, 2C) over the channels-last window of columns j − half … j, the 1 × 1 convolutions as
+    (C_in, C_out) matrices; the head's two matrices and the code embedding (K, C)."""
+
+    v_weight: tuple[torch.Tensor, ...]
+    v_bias: tuple[torch.Tensor, ...]
+    v_half: tuple[int, ...]
+    v2h_weight: tuple[torch.Tensor, ...]
+    h_bias: tuple[torch.Tensor, ...]  # v2h bias + horizontal bias: both are added at every position
+    h_weight: tuple[torch.Tensor, ...]
+    out_weight: tuple[torch.Tensor, ...]
+    out_bias: tuple[torch.Tensor, ...]
+    residual: tuple[bool, ...]
+    w1: torch.Tensor
+    b1: torch.Tensor
+    w2: torch.Tensor
+    b2: torch.Tensor
+    embed: torch.Tensor
+    condition_weight: torch.Tensor  # every layer's 1 × 1 conditioning side by side: (condition channels, L · 4C)
+    condition_bias: torch.Tensor
+    descending: torch.Tensor  # K, K − 1, …, 1: ranks codes for `_first_argmax`
+    device: torch.device
+
+
+@torch.inference_mode()
+def batched_weights(model: ConditionalPixelCNN, device: str | torch.device = "cpu") -> BatchedWeights:
+    """`model`'s weights laid out for `generate_batched` on `device`, as they are now."""
+    device = torch.device(device)
+
+    def on(t: torch.Tensor) -> torch.Tensor:
+        return t.detach().to(device=device, dtype=torch.float32, copy=True).contiguous()  # never the parameter itself
+
+    v_weight, v_half, h_weight = [], [], []
+    for layer in model.layers:
+        v, h = layer.vertical.weight.clone(), layer.horizontal.weight.clone()
+        if layer.mask == "A":  # the output's own row (vertical) and column (horizontal) are not seen
+            v[:, :, -1] = 0.0
+            h[:, :, :, -1] = 0.0
+        # (2C, C, rows, cols) → rows ordered (row, column, channel), as a channels-last window flattens
+        v_weight.append(on(v.permute(2, 3, 1, 0).reshape(-1, v.shape[0])))
+        v_half.append(v.shape[3] // 2)
+        # (2C, C, 1, half + 1) → rows ordered (column, channel), as a channels-last window flattens
+        h_weight.append(on(h[:, :, 0, :].permute(2, 1, 0).reshape(-1, h.shape[0])))
+    layers, head = list(model.layers), list(model.head)
+    return BatchedWeights(
+        v_weight=tuple(v_weight),
+        v_bias=tuple(on(layer.vertical.bias) for layer in layers),
+        v_half=tuple(v_half),
+        v2h_weight=tuple(on(layer.vertical_to_horizontal.weight[:, :, 0, 0].T) for layer in layers),
+        h_bias=tuple(on(layer.vertical_to_horizontal.bias + layer.horizontal.bias) for layer in layers),
+        h_weight=tuple(h_weight),
+        out_weight=tuple(on(layer.horizontal_out.weight[:, :, 0, 0].T) for layer in layers),
+        out_bias=tuple(on(layer.horizontal_out.bias) for layer in layers),
+        residual=tuple(bool(layer.residual) for layer in layers),
+        w1=on(head[1].weight[:, :, 0, 0].T),
+        b1=on(head[1].bias),
+        w2=on(head[3].weight[:, :, 0, 0].T),
+        b2=on(head[3].bias),
+        embed=on(model.embed.weight),
+        condition_weight=on(torch.cat([layer.condition.weight[:, :, 0, 0] for layer in layers]).T),
+        condition_bias=on(torch.cat([layer.condition.bias for layer in layers])),
+        descending=torch.arange(model.config.codebook_size, 0, -1, dtype=torch.float32, device=device),
+        device=device,
+    )
+
+
+def _first_argmax(logits: torch.Tensor, descending: torch.Tensor) -> torch.Tensor:
+    """`logits.argmax(-1)` (B,) — the first maximum — from vectorised float operations only: sign(x − max) + 1 is
+    1 exactly at the maxima and 0 elsewhere, and ranking by `descending` (K … 1) finds the first. A CPU reduces
+    floats several times faster than it finds an index."""
+    at_max = torch.sign(logits - logits.amax(-1, keepdim=True))
+    return (len(descending) - torch.addcmul(descending, at_max, descending).amax(-1)).long()
+
+
+def _pick(logits: torch.Tensor, temperature: float, uniforms: torch.Tensor) -> torch.Tensor:
+    """Codes (B,) from logits (B, K) by inverse transform of the softmax at `temperature` > 0 (in float64) with
+    one uniform number per row — `pixelcnn.pick`'s rule."""
+    scaled = logits.double() / temperature
+    cdf = torch.exp(scaled - scaled.max(-1, keepdim=True).values).cumsum(-1)
+    index = torch.searchsorted(cdf, (uniforms * cdf[:, -1]).unsqueeze(-1), right=True)
+    return index.squeeze(-1).clamp(max=logits.shape[-1] - 1)
+
+
+@torch.inference_mode()
+def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperature: float = 0.0,
+                     generator: torch.Generator | None = None, weights: BatchedWeights | None = None,
+                     uniforms: torch.Tensor | None = None,
+                     table: torch.Tensor | None = None) -> torch.Tensor | tuple[torch.Tensor, ...]:  # fmt: skip
+    """The next code grids (B, h, w) given `context` (B, 4, h, w): greedy if `temperature` is 0, else sampled.
+
+    `generate_fast`'s contract, computed over the batch at once on `weights.device` (the model's weights laid out
+    by `batched_weights`; for the CPU when None). `uniforms` (B, h, w) float64: the numbers to sample with, else
+    drawn from `generator` as `generate_fast` draws them. `table` (K, P): also return, per position,
+    Σ_q softmax(logits)_q · table[q] (B, h, w, P) from the logits the generation computes. Results come back on
+    the CPU."""
+    B, _, H, W = context.shape
+    weights = batched_weights(model) if weights is None else weights
+    if uniforms is None:
+        uniforms = draw_uniforms(B, H, W, temperature, generator)
+    if B > BLOCK_ROWS:  # blocks whose working set stays in the caches
+        parts = [generate_batched(model, context[s : s + BLOCK_ROWS], temperature, None, weights,
+                                  uniforms[s : s + BLOCK_ROWS], table) for s in range(0, B, BLOCK_ROWS)]  # fmt: skip
+        return torch.cat(parts) if table is None else tuple(torch.cat(p) for p in zip(*parts, strict=True))
+    device, L = weights.device, len(weights.v_weight)
+    uniforms = uniforms.to(device)
+    home = next(model.parameters()).device  # the conditioning map comes from the model where it lives
+    condition = model.condition(context.to(home)).to(device).permute(0, 2, 3, 1)  # (B, H, W, condition channels)
+    C = weights.embed.shape[1]
+    # Each layer's conditioning of its vertical gate and of its horizontal one (B, H, W, 2C) each, channels-last
+    # from one product; the horizontal one also carries both biases of the horizontal pre-activation.
+    per_layer = torch.addmm(weights.condition_bias, condition.reshape(B * H * W, -1), weights.condition_weight)
+    per_layer = per_layer.reshape(B, H, W, L, 2, 2 * C)
+    cond_v = [per_layer[:, :, :, layer, 0] for layer in range(L)]
+    cond_h = [per_layer[:, :, :, layer, 1] + bias for layer, bias in enumerate(weights.h_bias)]
+    top = max(weights.v_half)  # every vertical window reaches `top` rows up and columns aside at most
+    # Inputs of each layer's vertical stack, channels-last with `top` zero rows above and zero columns either
+    # side (layer 0: the embedded codes).
+    v_in = torch.zeros(L, B, top + H, top + W + top, C, device=device)
+    # The current row's horizontal features, channels-last with `left` zero columns: h[0] is the embedded codes.
+    left = max(w.shape[0] // C for w in weights.h_weight) - 1
+    h = torch.zeros(L + 1, B, left + W, C, device=device)
+    codes = torch.zeros(B, H, W, dtype=torch.long, device=device)
+    expected = None
+    if table is not None:
+        table = table.to(device=device, dtype=torch.float32)
+        expected = torch.empty(B, H, W, table.shape[1], device=device)
+    # Views, made once, of what each position reads and writes: layer l's window of columns j − taps + 1 … j
+    # (B, taps · C, contiguous within a row) and its output column j (B, C).
+    windows = [[h[layer, :, left + j - w.shape[0] // C + 1 : left + j + 1].reshape(B, -1) for j in range(W)]
+               for layer, w in enumerate(weights.h_weight)]  # fmt: skip
+    columns = [[h[layer, :, left + j] for j in range(W)] for layer in range(L + 1)]
+    layers = list(zip(weights.h_weight, weights.out_weight, weights.out_bias, weights.residual, strict=True))
+    row_terms = [torch.empty(0)] * L
+    for i in range(H):
+        for layer in range(L):
+            half = weights.v_half[layer]
+            rows = v_in[layer, :, top + i - half : top + i + 1, top - half : top + W + half]  # (B, half+1, W+2half, C)
+            window = rows.unfold(2, 2 * half + 1, 1).permute(0, 2, 1, 4, 3).reshape(B * W, -1)
+            v_pre = torch.addmm(weights.v_bias[layer], window, weights.v_weight[layer])  # (B·W, 2C)
+            if layer + 1 < L:
+                gate = v_pre.reshape(B, W, -1) + cond_v[layer][:, i]
+                v_in[layer + 1, :, top + i, top : top + W] = torch.tanh(gate[..., :C]) * torch.sigmoid(gate[..., C:])
+            row_terms[layer] = torch.addmm(cond_h[layer][:, i].reshape(B * W, -1), v_pre,
+                                           weights.v2h_weight[layer]).reshape(B, W, -1)  # fmt: skip
+        h[0].zero_()
+        for j in range(W):
+            for layer, (h_weight, out_weight, out_bias, residual) in enumerate(layers):
+                pre = torch.addmm(row_terms[layer][:, j], windows[layer][j], h_weight)
+                gated = torch.tanh(pre[:, :C]) * torch.sigmoid(pre[:, C:])
+                out = torch.addmm(out_bias, gated, out_weight)
+                if residual:
+                    out += columns[layer][j]
+                columns[layer + 1][j].copy_(out)
+            hidden = torch.addmm(weights.b1, torch.relu(columns[L][j]), weights.w1).relu_()
+            logits = torch.addmm(weights.b2, hidden, weights.w2)  # (B, K)
+            code = _first_argmax(logits, weights.descending)
+            if expected is not None:
+                expected[:, i, j] = torch.softmax(logits, -1) @ table
+            if temperature > 0.0:
+                code = _pick(logits, temperature, uniforms[:, i, j])
+            codes[:, i, j] = code
+            columns[0][j].copy_(weights.embed[code])
+        v_in[0, :, top + i, top : top + W] = h[0, :, left:]
+    codes = codes.cpu()
+    return codes if expected is None else (codes, expected.cpu())
