@@ -7,7 +7,8 @@ Prefect task each — skipping cases the run already holds and appending each ro
 interrupted evaluation resumes per episode — then aggregates the evaluation runs into table1.json / table1.md. The run
 `evaluation` is Table 1's; `--first-seed 2000000` with another `--log-dir` and `--run` plays the validation
 episodes instead, where a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`); any
-other run on the evaluation episodes is a candidate's.
+other run on the evaluation episodes is a candidate's. `--table1` plays every case of the complete Table 1 (both
+world-model configurations, every technique and speed the table lists) in one command.
 """
 
 from __future__ import annotations
@@ -32,9 +33,11 @@ from dynplan.evaluation.cases import (
     EVAL_EPISODES,
     EVAL_SEED_START,
     ROLLOUT_STEPS,
+    TABLE1,
     VALIDATION_SEED_START,
     Case,
     cases,
+    table1_cases,
 )
 from dynplan.evaluation.protocol import pending, run_cases
 from dynplan.evaluation.provenance import begin_run
@@ -91,17 +94,22 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      models: list[str] | None = None, model_dir: str | None = None,
                      first_seed: int = EVAL_SEED_START,
                      caution: dict[str, float] | None = None, run: str = EVALUATION_RUN,
-                     batch: int = BATCH, device: str = "cpu") -> list[dict]:  # fmt: skip
+                     batch: int = BATCH, device: str = "cpu", table1: bool = False) -> list[dict]:  # fmt: skip
     """Play the cases `run` lacks, in lockstep batches of up to `batch` episodes (one Prefect task each), and write
     the aggregated table. Learned techniques use the committed weights, or
     those under `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution`
     (field → value) overrides it, generating their batches on `device`. Episodes are seeds `first_seed` … (the
-    evaluation's by default)."""
+    evaluation's by default). `table1`: every case of the complete Table 1 instead of `techniques` × `models` ×
+    `agent_speeds`."""
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=first_seed)
     store_run = Run(results_dir, run)
-    all_cases = cases(techniques, tuple(agent_speeds or AGENT_SPEEDS), tuple(rollout_steps or ROLLOUT_STEPS),
-                      episodes, first_seed, tuple(models or ["default"]))  # fmt: skip
+    ks = tuple(rollout_steps or ROLLOUT_STEPS)
+    if table1:
+        all_cases = table1_cases(episodes, first_seed, ks)
+    else:
+        speeds = tuple(agent_speeds or AGENT_SPEEDS)
+        all_cases = cases(techniques, speeds, ks, episodes, first_seed, tuple(models or ["default"]))
     begin_run(store_run, run_role(run, first_seed), all_cases, log_dir, playouts, command, model_dir, caution)
     todo = pending(all_cases, store_run, log_dir, playouts, model_dir, caution)
     work = batches(todo, batch)
@@ -157,11 +165,22 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--workers", type=int, help="batches played at once locally (default: one per core)")
     parser.add_argument("--batch", type=int, default=BATCH, help=f"episodes per lockstep batch, in [1, 10000] "
                         f"(default {BATCH})")  # fmt: skip
+    parser.add_argument("--table1", action="store_true", help="play the complete Table 1: "
+                        + "; ".join(f"{speed * 2:g}x: {' '.join(names)}" for speed, names in TABLE1.items())
+                        + f" (learned ones with {' and '.join(WORLD_MODELS)}); instead of --techniques, --models "
+                        "and --agent-speeds")  # fmt: skip
     parser.add_argument("--device", default="cpu", help="where learned world models generate their batches: cpu "
                         "or cuda[:N] (default cpu)")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     add_debug_option(parser)
     args = parser.parse_args(argv)
+    if args.table1:
+        given = [f"--{name.replace('_', '-')}" for name in ("techniques", "models", "agent_speeds")
+                 if getattr(args, name) != parser.get_default(name)]  # fmt: skip
+        if given:
+            parser.error(f"--table1 plays the table's own techniques, models and speeds; drop {' '.join(given)}")
+        args.techniques = sorted({name for names in TABLE1.values() for name in names})
+        args.models, args.agent_speeds = list(WORLD_MODELS), sorted(TABLE1)
     overrides = {name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None}
     try:  # the configs' own validation, before any flow machinery starts: one source for every range
         for speed in args.agent_speeds:
@@ -207,7 +226,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
         command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
         caution=overrides or None,
-        run=args.run, batch=args.batch, device=args.device,
+        run=args.run, batch=args.batch, device=args.device, table1=args.table1,
     )  # fmt: skip
     if args.json:
         print(json.dumps(rows))

@@ -38,6 +38,15 @@ def test_cases_cover_the_table():
         Case("magic", 1.0, 3, 0)
 
 
+def test_table1_cases_are_the_committed_tables_rows():
+    from dynplan.evaluation.cases import table1_cases
+
+    groups = {(c.technique, c.model, c.agent_speed, c.rollout_steps) for c in table1_cases(episodes=2)}
+    committed = json.loads((Path(__file__).parents[1] / "datasets/results/table1.json").read_text())
+    assert groups == {(r["technique"], r["model"], r["agent_speed"], r["rollout_steps"]) for r in committed}
+    assert len(table1_cases(episodes=2)) == 2 * len(groups)
+
+
 def test_run_case_writes_a_result_and_resumes(tmp_path, eval_logs):
     case, run = Case("oracle", 1.0, 3, EVAL_SEED_START), Run(tmp_path)
     record = run_case(case, eval_logs, run)
@@ -266,6 +275,8 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
         (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --run"),
         (["--run", "../x"], "--run: run name '../x' is invalid"),
         (["--first-seed", "-1"], "seed"),
+        (["--table1", "--techniques", "mid", "--agent-speeds", "0.5"], "drop --techniques --agent-speeds"),
+        (["--device", "tpu"], "--device: device must be"),
     ],
 )
 def test_evaluate_command_line_names_bad_validation_settings(argv, message, capsys):

@@ -1,20 +1,26 @@
 """`generation`: milliseconds per predicted frame — greedy code grid from the PixelCNN prior, then the VQ-VAE's
-mid-point and 5 decoder samples — with naive and with cached (fast) generation, measured in one run."""
+mid-point and 5 decoder samples — with naive and with cached (fast) generation, measured in one run; and
+milliseconds per grid when many grids are generated together, by the compiled kernel (grid after grid) and by the
+batched generation (matrix–matrix over the batch), with the committed priors and their occupancy tables."""
 
 from __future__ import annotations
 
 import statistics
 import time
 from collections.abc import Callable
+from functools import partial
 
 import torch
 
+from dynplan.models.batched import batched_weights, generate_batched
 from dynplan.models.generation import generate_fast, kernel_weights
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import world_model_spec
 from dynplan.models.vqvae import VQVAE
 
 TARGET_MS = 20.0
+#: Batch sizes of the batched case: one lockstep step's grids for a handful of episodes, and for 100.
+BATCHES = (8, 32, 100)
 
 
 def _ms_per_frame(generate: Callable, prior: ConditionalPixelCNN, tokenizer: VQVAE, frames: int, samples: int) -> float:
@@ -51,4 +57,44 @@ def bench_generation(frames: int = 5, repeats: int = 3, samples: int = 5, thread
             results[f"{name}_{case}"] = {"ms_per_frame": round(ms, 2), "samples": samples, "threads": threads}
         results[f"{name}_fast"]["speedup_vs_naive"] = round(timings["naive"] / timings["fast"], 1)
         results[f"{name}_fast"]["target_ms"] = TARGET_MS
+    return results | bench_batched(threads=threads)
+
+
+def _median_ms_per_grid(generate: Callable[[], object], grids: int, repeats: int) -> float:
+    generate()  # warm-up: compilation and the matrix library's first calls at this shape
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        generate()
+        times.append((time.perf_counter() - start) * 1e3 / grids)
+    return statistics.median(times)
+
+
+def bench_batched(batches: tuple[int, ...] = BATCHES, repeats: int = 5, threads: int = 2) -> dict:
+    """Per committed world model and batch size: median ms per greedy grid (with the configuration's occupancy
+    table where it has one) by the kernel and by the batched generation, and their ratio."""
+    from dynplan.models.world_model import load_world_model
+
+    torch.set_num_threads(threads)
+    results = {}
+    for name in ("paper", "default"):
+        model = load_world_model(model=name)
+        prior, (h, w) = model.prior, model.tokenizer.config.grid
+        table = model.code_obstacles() if model.occupancy else None
+        lookup = None if table is None else table.numpy()
+        kernel, batched = kernel_weights(prior), batched_weights(prior)
+        for B in batches:
+            context = torch.randint(0, prior.config.codebook_size, (B, 4, h, w),
+                                    generator=torch.Generator().manual_seed(B))  # fmt: skip
+            by_kernel = _median_ms_per_grid(partial(generate_fast, prior, context, weights=kernel, table=lookup),
+                                            B, repeats)  # fmt: skip
+            by_batch = _median_ms_per_grid(partial(generate_batched, prior, context, weights=batched, table=table),
+                                           B, repeats)  # fmt: skip
+            results[f"{name}_batch{B}"] = {
+                "kernel_ms_per_grid": round(by_kernel, 2),
+                "batched_ms_per_grid": round(by_batch, 2),
+                "speedup_vs_kernel": round(by_kernel / by_batch, 2),
+                "occupancy_table": table is not None,
+                "threads": threads,
+            }
     return results

@@ -17,6 +17,12 @@ VALIDATION_SEED_START = 2_000_000
 EVAL_EPISODES = 100
 AGENT_SPEEDS = (1.0, 0.5)
 ROLLOUT_STEPS = (1, 3, 5, 10)
+#: The complete Table 1: per agent speed, its techniques (learned ones with every world-model configuration). The
+#: 2× agent has every technique; the 1× agent the paper's rows (oracle, 5 samples) and the two bounds.
+TABLE1 = {
+    1.0: ("oracle", "mid", "samples5", "samples10", "zero", "random", "futures5"),
+    0.5: ("oracle", "samples5", "zero", "random"),
+}
 
 
 @dataclass(frozen=True)
@@ -62,3 +68,11 @@ def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
                 for k in ks:
                     out += [Case(name, speed, k, first_seed + i, model) for i in range(episodes)]
     return out
+
+
+def table1_cases(episodes: int = EVAL_EPISODES, first_seed: int = EVAL_SEED_START,
+                 rollout_steps: tuple[int, ...] = ROLLOUT_STEPS) -> list[Case]:  # fmt: skip
+    """Every case of the complete Table 1 (`TABLE1`), learned techniques with every world-model configuration."""
+    models = tuple(WORLD_MODELS)
+    return [case for speed, names in TABLE1.items()
+            for case in cases(list(names), (speed,), rollout_steps, episodes, first_seed, models)]  # fmt: skip
