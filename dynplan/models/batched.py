@@ -48,8 +48,6 @@ class BatchedWeights:
     w2: torch.Tensor
     b2: torch.Tensor
     embed: torch.Tensor
-    condition_weight: torch.Tensor  # every layer's 1 × 1 conditioning side by side: (condition channels, L · 4C)
-    condition_bias: torch.Tensor
     descending: torch.Tensor  # K, K − 1, …, 1: ranks codes for `_first_argmax`
     device: torch.device
 
@@ -89,8 +87,6 @@ def batched_weights(model: ConditionalPixelCNN, device: str | torch.device = "cp
         w2=on(head[3].weight[:, :, 0, 0].T),
         b2=on(head[3].bias),
         embed=on(model.embed.weight),
-        condition_weight=on(torch.cat([layer.condition.weight[:, :, 0, 0] for layer in layers]).T),
-        condition_bias=on(torch.cat([layer.condition.bias for layer in layers])),
         descending=torch.arange(model.config.codebook_size, 0, -1, dtype=torch.float32, device=device),
         device=device,
     )
@@ -135,13 +131,11 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
         return torch.cat(parts) if table is None else tuple(torch.cat(p) for p in zip(*parts, strict=True))
     device, L = weights.device, len(weights.v_weight)
     uniforms = uniforms.to(device)
-    home = next(model.parameters()).device  # the conditioning map comes from the model where it lives
-    condition = model.condition(context.to(home)).to(device).permute(0, 2, 3, 1)  # (B, H, W, condition channels)
+    home = next(model.parameters()).device  # the conditioning comes from the model where it lives, once per grid
+    per_layer = model.layer_conditions(model.condition(context.to(home))).to(device)  # (B, H, W, L, 2, 2C)
     C = weights.embed.shape[1]
-    # Each layer's conditioning of its vertical gate and of its horizontal one (B, H, W, 2C) each, channels-last
-    # from one product; the horizontal one also carries both biases of the horizontal pre-activation.
-    per_layer = torch.addmm(weights.condition_bias, condition.reshape(B * H * W, -1), weights.condition_weight)
-    per_layer = per_layer.reshape(B, H, W, L, 2, 2 * C)
+    # Each layer's conditioning of its vertical gate and of its horizontal one (B, H, W, 2C) each; the horizontal
+    # one also carries both biases of the horizontal pre-activation.
     cond_v = [per_layer[:, :, :, layer, 0] for layer in range(L)]
     cond_h = [per_layer[:, :, :, layer, 1] + bias for layer, bias in enumerate(weights.h_bias)]
     top = max(weights.v_half)  # every vertical window reaches `top` rows up and columns aside at most

@@ -74,16 +74,15 @@ def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature
     B, _, H, W = context.shape
     if uniforms is None:
         uniforms = draw_uniforms(B, H, W, temperature, generator)
-    condition = model.condition(context)
-    cond_v, cond_h = zip(*(layer.condition(condition).chunk(2, dim=1) for layer in model.layers), strict=True)
+    conditions = model.layer_conditions(model.condition(context))  # (B, h, w, L, 2, 2C)
 
-    def channels_last(parts) -> np.ndarray:  # (L, B, 2C, h, w) → (L, B, h, w, 2C)
-        return np.ascontiguousarray(torch.stack(parts).permute(0, 1, 3, 4, 2).numpy(), dtype=np.float32)
+    def channels_last(gate: int) -> np.ndarray:  # → (L, B, h, w, 2C)
+        return np.ascontiguousarray(conditions[..., gate, :].permute(3, 0, 1, 2, 4).numpy(), dtype=np.float32)
 
     weights = kernel_weights(model) if weights is None else weights
     lookup = np.zeros((0, 1), np.float32) if table is None else np.ascontiguousarray(table.T, dtype=np.float32)
     expected = np.zeros((B, H, W, lookup.shape[0]), np.float32)
-    codes = _generate_grid(channels_last(cond_v), channels_last(cond_h), float(temperature), uniforms.numpy(),
+    codes = _generate_grid(channels_last(0), channels_last(1), float(temperature), uniforms.numpy(),
                            lookup, expected, *weights)  # fmt: skip
     return torch.from_numpy(codes) if table is None else (torch.from_numpy(codes), expected)
 

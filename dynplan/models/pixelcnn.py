@@ -155,6 +155,15 @@ class ConditionalPixelCNN(nn.Module):
         e = self.context_embed(context.long())  # (B, n, h, w, E)
         return self.conditioner(e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w))
 
+    def layer_conditions(self, condition: torch.Tensor) -> torch.Tensor:
+        """Every layer's conditioning of its vertical and horizontal gates from the conditioning map (B, c, h, w), as
+        one product: channels-last (B, h, w, layers, 2, 2 · channels) — [..., l, 0, :] is layer l's vertical, [..., l,
+        1, :] its horizontal (each layer's `condition` convolution, chunked in two)."""
+        weight = torch.cat([layer.condition.weight[:, :, 0, 0] for layer in self.layers])
+        bias = torch.cat([layer.condition.bias for layer in self.layers])
+        B, _, h, w = condition.shape
+        return F.linear(condition.permute(0, 2, 3, 1), weight, bias).reshape(B, h, w, len(self.layers), 2, -1)
+
     def logits(self, codes: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
         """codes (B, h, w), conditioning map → logits (B, K, h, w); position (i, j) sees only codes before it."""
         return self.logits_from_embedding(self.embed(codes.long()).permute(0, 3, 1, 2), condition)
