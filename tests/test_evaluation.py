@@ -12,7 +12,7 @@ from PIL import Image
 from dynplan.config import ConfigError
 from dynplan.data.collect import log_path, record_episode
 from dynplan.evaluation.cases import EVAL_SEED_START, Case, cases
-from dynplan.evaluation.protocol import pending, run_case
+from dynplan.evaluation.protocol import case_agent, pending, run_case, run_cases
 from dynplan.evaluation.replay import replay
 from dynplan.evaluation.store import Run
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
@@ -224,6 +224,12 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     widened = run_case(all_cases[0], eval_logs, run, playouts=5, caution={"occupancy": 0.3, "margin": 2})
     assert (widened["occupancy"], widened["margin"]) == (0.3, 2)
     assert len(run.rows()) == 4
+    devices = []  # the device reaches every learned model an evaluation builds, and is no part of provenance
+    monkeypatch.setattr(world_model, "check_device", lambda name: devices.append(name) or name)
+    assert run_cases(all_cases, eval_logs, run, playouts=5, device="cuda:1") == records  # played: found
+    _, forward = case_agent(all_cases[0], read_episode_log(log_path(eval_logs, EVAL_SEED_START)).world(),
+                            device="cuda:1")  # fmt: skip
+    assert forward.device == "cuda:1" and devices == ["cuda:1"]
     rows = aggregate(records)
     assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}
     assert "| 2× samples5 [default] (ours) | " in render_markdown(rows)
