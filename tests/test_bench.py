@@ -28,6 +28,17 @@ def test_bench_unknown_name_is_a_clear_error():
     assert "invalid choice: 'wrold'" in proc.stderr
 
 
+def test_bench_device_applies_to_the_world_model_benchmarks_only(capsys):
+    from dynplan.bench.__main__ import main
+
+    with pytest.raises(SystemExit):
+        main(["world", "--device", "cpu"])
+    assert "the world benchmark runs on the CPU only; --device applies to evaluation" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["evaluation", "--device", "tpu"])
+    assert "--device: device must be" in capsys.readouterr().err
+
+
 def test_bench_decision_times_the_committed_paper_world_model():
     from dynplan.bench.decision import bench_decision
 

@@ -1,8 +1,9 @@
-"""Command line: `python -m dynplan.bench NAME [--json]`."""
+"""Command line: `python -m dynplan.bench NAME [--json] [--device DEVICE]`."""
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import json
 import sys
 
@@ -13,8 +14,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dynplan.bench", description=__doc__)
     parser.add_argument("name", choices=sorted(BENCHMARKS), help="which benchmark to run")
     parser.add_argument("--json", action="store_true", help="print {case: {figure: value}} as JSON")
+    with_device = sorted(n for n, b in BENCHMARKS.items() if "device" in inspect.signature(b).parameters)
+    parser.add_argument("--device", help=f"where the world model generates: cpu or cuda[:N] ({', '.join(with_device)})")
     args = parser.parse_args(argv)
-    results = BENCHMARKS[args.name]()
+    options = {}
+    if args.device is not None:
+        if args.name not in with_device:
+            parser.error(f"--device: the {args.name} benchmark runs on the CPU only; --device applies to "
+                         f"{', '.join(with_device)}")  # fmt: skip
+        from dynplan.models.world_model import check_device
+
+        try:
+            options["device"] = check_device(args.device)
+        except ValueError as error:
+            parser.error(f"--device: {error}")
+    results = BENCHMARKS[args.name](**options)
     if args.json:
         print(json.dumps(results, indent=2))
         return 0

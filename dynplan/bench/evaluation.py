@@ -19,8 +19,9 @@ from dynplan.planning.episode import run_episode, run_episodes
 CASES = (("samples5_default_2x_k3", 1.0, 3, 100), ("samples5_default_1x_k10", 0.5, 10, 10))
 
 
-def bench_evaluation(episodes: int | None = None, threads: int = 2) -> dict[str, dict[str, float]]:
-    """Each case's episodes per path (the same seeds); `episodes` overrides each case's count."""
+def bench_evaluation(episodes: int | None = None, threads: int = 2, device: str = "cpu") -> dict[str, dict[str, float]]:
+    """Each case's episodes per path (the same seeds); `episodes` overrides each case's count; `device`: where the
+    world model generates its batches."""
     torch.set_num_threads(threads)
     results = {}
     for name, speed, k, count in CASES:
@@ -28,7 +29,7 @@ def bench_evaluation(episodes: int | None = None, threads: int = 2) -> dict[str,
         worlds = [generate_world(RoadConfig(agent_speed=speed), VALIDATION_SEED_START + i) for i in range(count)]
 
         def agents(worlds=worlds, speed=speed, k=k):
-            return [case_agent(Case("samples5", speed, k, w.seed, "default"), w) for w in worlds]
+            return [case_agent(Case("samples5", speed, k, w.seed, "default"), w, device=device) for w in worlds]
 
         _, warm_model = agents()[0]
         warm_model.predict(worlds[0].frames[:5], k)  # compile the kernels outside the timings
@@ -51,5 +52,6 @@ def bench_evaluation(episodes: int | None = None, threads: int = 2) -> dict[str,
             "speedup": round(per_episode_s / lockstep_s, 2),
             "episodes_differing": differing,
             "threads": threads,
+            "device": device,
         }
     return results
