@@ -39,6 +39,7 @@ from dynplan.models import checkpoint as checkpoints
 from dynplan.models import pretrained_path
 from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset
 from dynplan.pipeline.report import StageRecord, checkpoint_record, draw_figures, render_report, write_report
+from flows.artifacts import publish_report
 from flows.build_datasets import build_datasets
 from flows.cli import add_debug_option, run
 from flows.collect import collect_episodes
@@ -119,6 +120,7 @@ def report_task(preset: dict, work: str, eval_logs: str, command: str, stages: l
     rows = aggregate(load_results(work_dir / "results")) if (work_dir / "results").exists() else []
     markdown = render_report(plan.model_dump(mode="json"), command, rows, records, ckpts, figures)
     md, _ = write_report(work_dir / "report", markdown)
+    publish_report(markdown, plan.name)
     timings = json.dumps([asdict(r) for r in records], indent=1).encode()
     write_bytes_atomic(work_dir / "report" / "stages.json", timings)
     return str(md)
@@ -156,7 +158,7 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
     timed("evaluate", lambda: evaluate_planner.with_options(task_runner=runner)(
         techniques=list(e.techniques), agent_speeds=list(e.agent_speeds), rollout_steps=list(e.rollout_steps),
         episodes=e.episodes, playouts=e.playouts, log_dir=str(eval_logs), results_dir=str(work / "results"),
-        command=command, models=list(plan.models), model_dir=str(work / "models")),
+        command=command, models=list(plan.models), model_dir=str(work / "models"), artifacts=plan.name),
         lambda rows: f"{len(rows)} table rows")  # fmt: skip
     report = report_task(plan.model_dump(mode="json"), str(work), str(eval_logs), command, stages)
     print(f"report: {report}")

@@ -50,6 +50,7 @@ from dynplan.models.registry import WORLD_MODELS, world_model_spec
 from dynplan.models.world_model import check_device, world_model_parts, world_model_paths
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
+from flows.artifacts import ProgressArtifact, publish_table1
 from flows.cli import add_debug_option, run
 from flows.collect import collect_episodes
 from flows.runners import dask_address, task_runner
@@ -94,13 +95,15 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      models: list[str] | None = None, model_dir: str | None = None,
                      first_seed: int = EVAL_SEED_START,
                      caution: dict[str, float] | None = None, run: str = EVALUATION_RUN,
-                     batch: int = BATCH, device: str = "cpu", table1: bool = False) -> list[dict]:  # fmt: skip
+                     batch: int = BATCH, device: str = "cpu", table1: bool = False,
+                     artifacts: str | None = None) -> list[dict]:  # fmt: skip
     """Play the cases `run` lacks, in lockstep batches of up to `batch` episodes (one Prefect task each), and write
     the aggregated table. Learned techniques use the committed weights, or
     those under `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution`
     (field → value) overrides it, generating their batches on `device`. Episodes are seeds `first_seed` … (the
     evaluation's by default). `table1`: every case of the complete Table 1 instead of `techniques` × `models` ×
-    `agent_speeds`."""
+    `agent_speeds`. Publishes the episodes' progress and the table as Prefect artifacts, the table keyed
+    `table1-<artifacts>` (default: the run's name)."""
     techniques = techniques or ["oracle", "zero", "random"]
     collect_episodes(out=log_dir, episodes=episodes, seed=first_seed)
     store_run = Run(results_dir, run)
@@ -118,13 +121,17 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                                       unmapped(run), unmapped(playouts), unmapped(model_dir),
                                       unmapped(caution), unmapped(device))  # fmt: skip
     role = store_run.manifest()["role"]
+    played = ProgressArtifact(f"episodes played into run {run!r}", len(todo))
+    sizes = {future.task_run_id: len(b) for future, b in zip(futures, work, strict=True)}
     for future in progress(as_completed(futures), total=len(futures), description="evaluate batches"):
         future.result()
+        played.advance(sizes[future.task_run_id])
         if role == "evaluation":  # a stopped evaluation still leaves an up-to-date table
             write_table(aggregate(load_results(results_dir)), results_dir)
     if role == "evaluation":
         write_table(aggregate(load_results(results_dir)), results_dir)
     rows = aggregate(store_run.current())
+    publish_table1(aggregate(load_results(results_dir)) if role == "evaluation" else rows, artifacts or run)
     print(f"\nrun {run!r} ({role}):\n" + render_markdown(rows))
     return rows
 

@@ -30,6 +30,7 @@ from dynplan.training.loop import TrainBudget
 from dynplan.training.pixelcnn import train_pixelcnn
 from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
 from dynplan.training.vqvae import train_vqvae
+from flows.artifacts import ProgressArtifact
 from flows.cli import add_debug_option, run
 
 
@@ -54,22 +55,31 @@ def _pixelcnn_key(context: TaskRunContext, p: dict) -> str | None:
     return _finished_key(run_dir, "pixelcnn", p["budget"]["epochs"])
 
 
-def _show(keys: tuple[str, ...]):
-    return lambda row: print(json.dumps({k: row[k] for k in keys}))
+def _show(keys: tuple[str, ...], run_dir: Path, epochs: int):
+    """Each finished epoch: its figures printed (`keys`) and the task's progress artifact moved on."""
+    done = ProgressArtifact(f"epochs of {run_dir.name}", epochs)
+
+    def show(row: dict) -> None:
+        print(json.dumps({k: row[k] for k in keys}))
+        done.update(int(row["epoch"]))
+
+    return show
 
 
 @task(name="train-vqvae", cache_key_fn=_vqvae_key, persist_result=True)
 def train_vqvae_task(store: str, out: str, config: dict, budget: dict) -> str:
     run_dir = vqvae_run_dir(store, out, config, budget)
-    shown = ("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used")
-    return str(train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget), on_epoch=_show(shown)))
+    shown = _show(("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used"), run_dir,
+                  budget["epochs"])  # fmt: skip
+    return str(train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget), on_epoch=shown))
 
 
 @task(name="train-pixelcnn", cache_key_fn=_pixelcnn_key, persist_result=True)
 def train_pixelcnn_task(store: str, codes: str, out: str, config: dict, budget: dict) -> str:
     run_dir = pixelcnn_run_dir(store, codes, out, config, budget)
-    shown = ("epoch", "loss", "val_accuracy", "val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact")
-    path = train_pixelcnn(store, codes, run_dir, PixelCNNConfig(**config), TrainBudget(**budget), on_epoch=_show(shown))
+    shown = _show(("epoch", "loss", "val_accuracy", "val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact"),
+                  run_dir, budget["epochs"])  # fmt: skip
+    path = train_pixelcnn(store, codes, run_dir, PixelCNNConfig(**config), TrainBudget(**budget), on_epoch=shown)
     return str(path)
 
 

@@ -63,6 +63,17 @@ def test_end_to_end_run_writes_the_report_and_reruns_from_cache(tmp_path, prefec
     assert after == before  # nothing retrained, reinstalled or replayed
     rerun = (work / "report" / "report.md").read_text()
     assert "| vqvae [default] | " in rerun and "cached, 1 epochs" in rerun and "0 recorded now" in rerun
+    # The Prefect UI's view: both runs' Table 1 and report under one key each, progress of the first run's work
+    from flows.artifacts import read_artifacts as artifacts
+
+    tables, reports = artifacts(key="table1-smoke"), artifacts(key="report-smoke")
+    assert len(tables) == len(reports) == 2 and {a.type for a in tables + reports} == {"table", "markdown"}
+    cells = {(row["technique"], row["model"]): row for row in json.loads(tables[-1].data)}
+    assert cells[("oracle", None)]["episodes"] == cells[("mid", "default")]["episodes"] == 1
+    assert "| 2× mid [default] (ours) |" in tables[-1].description and "## Table 1" in reports[-1].data
+    progress = [a for a in artifacts(kind="progress") if a.data == 100.0]
+    described = " ".join(a.description for a in progress)
+    assert "episodes played into run 'evaluation': 2 of 2" in described and "epochs of vqvae-default" in described
 
 
 @pytest.mark.slow
