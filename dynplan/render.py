@@ -98,3 +98,14 @@ def side_by_side(images: Sequence[np.ndarray], gap: int = 1) -> np.ndarray:
     for i, image in enumerate(images):
         parts += [spacer, image] if i else [image]
     return np.concatenate(parts, axis=1)
+
+
+def comparison_columns(true: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """RGB columns, one per frame pair of `true` and `predicted` (n, H, W): the true frame over the predicted one
+    over their error panel (`error_image`), white lines between them."""
+    columns = []
+    for t, p in zip(true, predicted, strict=True):
+        parts = [colorize(t), colorize(p), error_image(t, p)]
+        spacer = np.full((1, t.shape[1], 3), 255, np.uint8)
+        columns.append(np.concatenate([parts[0], spacer, parts[1], spacer, parts[2]]))
+    return side_by_side(columns)

@@ -29,6 +29,7 @@ from dynplan.training.codes import build_codes
 from dynplan.training.loop import TrainBudget
 from dynplan.training.pixelcnn import train_pixelcnn
 from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
+from dynplan.training.tensorboard import INSTALL, MissingExtra, check_available
 from dynplan.training.vqvae import train_vqvae
 from flows.artifacts import ProgressArtifact
 from flows.cli import add_debug_option, run
@@ -66,20 +67,28 @@ def _show(keys: tuple[str, ...], run_dir: Path, epochs: int):
     return show
 
 
+def _board(tensorboard: str | None, run_dir: Path) -> Path | None:
+    """The run's TensorBoard folder: its own under `tensorboard`, named as the run folder."""
+    return None if tensorboard is None else Path(tensorboard) / run_dir.name
+
+
 @task(name="train-vqvae", cache_key_fn=_vqvae_key, persist_result=True)
-def train_vqvae_task(store: str, out: str, config: dict, budget: dict) -> str:
+def train_vqvae_task(store: str, out: str, config: dict, budget: dict, tensorboard: str | None = None) -> str:
     run_dir = vqvae_run_dir(store, out, config, budget)
     shown = _show(("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used"), run_dir,
                   budget["epochs"])  # fmt: skip
-    return str(train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget), on_epoch=shown))
+    return str(train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget), on_epoch=shown,
+                           tensorboard=_board(tensorboard, run_dir)))  # fmt: skip
 
 
 @task(name="train-pixelcnn", cache_key_fn=_pixelcnn_key, persist_result=True)
-def train_pixelcnn_task(store: str, codes: str, out: str, config: dict, budget: dict) -> str:
+def train_pixelcnn_task(store: str, codes: str, out: str, config: dict, budget: dict,
+                        tensorboard: str | None = None) -> str:  # fmt: skip
     run_dir = pixelcnn_run_dir(store, codes, out, config, budget)
     shown = _show(("epoch", "loss", "val_accuracy", "val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact"),
                   run_dir, budget["epochs"])  # fmt: skip
-    path = train_pixelcnn(store, codes, run_dir, PixelCNNConfig(**config), TrainBudget(**budget), on_epoch=shown)
+    path = train_pixelcnn(store, codes, run_dir, PixelCNNConfig(**config), TrainBudget(**budget), on_epoch=shown,
+                          tensorboard=_board(tensorboard, run_dir))  # fmt: skip
     return str(path)
 
 
@@ -90,11 +99,13 @@ def build_codes_task(store: str, checkpoint: str, name: str) -> str:
 
 @flow(name="train-vqvae", log_prints=True)
 def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
-                     budget: dict | None = None, overrides: dict | None = None) -> str:  # fmt: skip
-    """Train the VQ-VAE preset `model` (with optional config `overrides`) on `store`."""
+                     budget: dict | None = None, overrides: dict | None = None,
+                     tensorboard: str | None = None) -> str:  # fmt: skip
+    """Train the VQ-VAE preset `model` (with optional config `overrides`) on `store`; `tensorboard`: a folder for
+    TensorBoard event files (one subfolder per run)."""
     config = world_model_spec(model).tokenizer.model_copy(update=overrides or {})
     config = VQVAEConfig(**config.model_dump())  # validate the overrides
-    path = train_vqvae_task(store, out, config.model_dump(), TrainBudget(**(budget or {})).model_dump())
+    path = train_vqvae_task(store, out, config.model_dump(), TrainBudget(**(budget or {})).model_dump(), tensorboard)
     print(f"checkpoint: {path}")
     if Path(path).name == "vqvae.pt":  # finished (not stopped early by max_minutes): encode the store
         # A run with overrides is an experiment: its codes go beside the preset's, not over them.
@@ -106,12 +117,12 @@ def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default"
 @flow(name="train-pixelcnn", log_prints=True)
 def train_pixelcnn_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
                         budget: dict | None = None, overrides: dict | None = None,
-                        codes: str | None = None) -> str:  # fmt: skip
+                        codes: str | None = None, tensorboard: str | None = None) -> str:  # fmt: skip
     """Train the PixelCNN prior preset `model` on the store's `codes_<model>` (made by the VQ-VAE flow), or on
-    the code array `codes` (an experiment's tokenizer)."""
+    the code array `codes` (an experiment's tokenizer); `tensorboard` as for the VQ-VAE."""
     config = PixelCNNConfig(**world_model_spec(model).prior.model_copy(update=overrides or {}).model_dump())
     path = train_pixelcnn_task(store, codes or f"codes_{model}", out, config.model_dump(),
-                               TrainBudget(**(budget or {})).model_dump())  # fmt: skip
+                               TrainBudget(**(budget or {})).model_dump(), tensorboard)  # fmt: skip
     print(f"checkpoint: {path}")
     return path
 
@@ -145,6 +156,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (same architecture)")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
     parser.add_argument("--codes", help="pixelcnn: the store's code array to train on (default: codes_<model>)")
+    parser.add_argument("--tensorboard", metavar="DIR", help="also write TensorBoard scalars and images to "
+                        f"DIR/<run folder>/ (needs the tensorboard extra: {INSTALL})")  # fmt: skip
     add_debug_option(parser)
     args = parser.parse_args(argv)
     codes = args.codes or f"codes_{args.model}"
@@ -161,17 +174,20 @@ def main(argv: list[str] | None = None) -> str:
             if not Path(args.init_from).is_file():
                 raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
             checkpoint.load(args.init_from, args.stage)  # truncated, foreign or of the other stage: one line
+        if args.tensorboard:
+            check_available()
         if not Path(args.store).exists():
             raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
         if args.stage == "pixelcnn" and codes not in zarr.open_group(args.store, mode="r", use_consolidated=False):
             raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
                                     f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
-    except (ConfigError, ValueError, FileNotFoundError, CheckpointError) as error:
+    except (ConfigError, ValueError, FileNotFoundError, CheckpointError, MissingExtra) as error:
         parser.error(str(error))
     if args.stage == "vqvae":
-        return train_vqvae_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides)
+        return train_vqvae_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides,
+                                tensorboard=args.tensorboard)  # fmt: skip
     return train_pixelcnn_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides,
-                               codes=codes)  # fmt: skip
+                               codes=codes, tensorboard=args.tensorboard)  # fmt: skip
 
 
 if __name__ == "__main__":

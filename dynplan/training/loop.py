@@ -18,6 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 from pydantic import Field, field_validator
 
@@ -65,6 +66,7 @@ class Stage:
     epoch_end() → extra training metrics of the epoch just finished (and resets whatever it accumulates)
     evaluate() → validation metrics
     plot(out_dir) → draw pictures of the current model (optional)
+    images() → the same as RGB images (H, W, 3) uint8 by name, for TensorBoard (optional)
     unit: what a batch item is ("frames", "windows"), for the throughput columns
     """
 
@@ -77,6 +79,7 @@ class Stage:
     evaluate: Callable[[], dict[str, float]]
     epoch_end: Callable[[], dict[str, float]] = dict
     plot: Callable[[Path], None] | None = None
+    images: Callable[[], dict[str, np.ndarray]] | None = None
     unit: str = "frames"
 
 
@@ -109,9 +112,11 @@ def finished(out_dir: Path, stage_kind: str, config: dict, epochs: int) -> Path 
         raise
 
 
-def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None) -> Path:
+def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None,
+          tensorboard: str | os.PathLike | None = None) -> Path:  # fmt: skip
     """Run `stage` in `out_dir` up to `budget.epochs`, resuming from `checkpoint.pt`; return the final checkpoint,
-    or the latest if `budget.max_minutes` stopped it first."""
+    or the latest if `budget.max_minutes` stopped it first. `tensorboard`: a folder that also receives every
+    epoch's figures and the stage's images (`dynplan.training.tensorboard`)."""
     latest, final = out_dir / "checkpoint.pt", out_dir / f"{stage.kind}.pt"
     epoch, elapsed, history = 0, 0.0, []
     if latest.exists():
@@ -124,6 +129,12 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
     elif budget.init_from:
         warm_start(stage.model, budget.init_from, stage.kind)
     write_bytes_atomic(out_dir / "config.json", json.dumps(stage.config, indent=1).encode())
+    board = None
+    if tensorboard is not None:
+        from dynplan.training.tensorboard import EpochWriter
+
+        board = EpochWriter(tensorboard)
+        board.history(history)  # a resumed run's earlier epochs, where the folder lacks them
     started = time.perf_counter()
     while epoch < budget.epochs:
         if budget.max_minutes and (time.perf_counter() - started) / 60 >= budget.max_minutes:
@@ -155,8 +166,12 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
         write_csv(out_dir / "metrics.csv", history)
         if stage.plot is not None:
             stage.plot(out_dir)
+        if board is not None:
+            board.epoch(row, stage.images() if stage.images else None)
         if on_epoch:
             on_epoch(row)
+    if board is not None:
+        board.close()
     if epoch < budget.epochs:
         return latest
     return export_weights(latest, final, stage.kind, stage.config)

@@ -21,6 +21,7 @@ from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.render import comparison_columns
 from dynplan.training import loop
 from dynplan.training.loop import TrainBudget
 
@@ -35,8 +36,10 @@ def _windows(dataset: WindowDataset) -> np.ndarray:
 
 
 def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathLike, config: PixelCNNConfig,
-                   budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None) -> Path:  # fmt: skip
-    """Train (or resume) the prior of the code array `codes` (e.g. "codes_default") of `store` in `out_dir`."""
+                   budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None,
+                   tensorboard: str | os.PathLike | None = None) -> Path:  # fmt: skip
+    """Train (or resume) the prior of the code array `codes` (e.g. "codes_default") of `store` in `out_dir`;
+    `tensorboard`: a folder that also receives every epoch's figures and its predicted next frames."""
     store, out_dir = str(store), Path(out_dir)
     done = loop.begin(out_dir, KIND, config.model_dump(), budget)
     if done is not None:
@@ -75,6 +78,7 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         return {"loss": out.loss.item(), "accuracy": out.accuracy.item(), "learning_rate": rate}
 
     generated = np.linspace(0, len(val_target) - 1, min(256, len(val_target))).astype(int)  # spread evenly
+    shown: dict[str, np.ndarray] = {}  # the last evaluation's first predicted next frames, and the truth
 
     def evaluate() -> dict[str, float]:
         model.eval()
@@ -89,14 +93,18 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
             predicted = generate_fast(on_cpu, val_context[generated])
             frames = tokenizer.decode(predicted).numpy()
         model.train()
+        shown["true"], shown["predicted"] = val_frames[generated[:6]], frames[:6]
         errors = frame_errors(val_frames[generated], frames)
         exact = (predicted == val_target[generated]).all(dim=(1, 2)).float().mean()
         return {"val_loss": loss / len(val_target), "val_accuracy": accuracy / len(val_target),
                 "val_greedy_grid_exact": float(exact), **{f"val_next_{k}": v for k, v in errors.items()}}  # fmt: skip
 
+    def images() -> dict[str, np.ndarray]:
+        return {"next_frame": comparison_columns(shown["true"], shown["predicted"])}
+
     stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
-                       unit="windows")  # fmt: skip
-    return loop.train(out_dir, stage, budget, on_epoch)
+                       images=images, unit="windows")  # fmt: skip
+    return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
 
 
 def learning_rate(config: PixelCNNConfig, steps: int) -> float:

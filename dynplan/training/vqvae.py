@@ -62,6 +62,23 @@ def evaluate(model: VQVAE, frames: np.ndarray, batch: int = 256) -> dict[str, fl
     }
 
 
+def _reconstructed(model: VQVAE, frames: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """n validation frames spread over `frames` and their mid-point reconstructions."""
+    picks = frames[np.linspace(0, len(frames) - 1, n).astype(int)]
+    model.eval()
+    device = next(model.parameters()).device
+    decoded = model.decode(model.encode(torch.from_numpy(picks).to(device))).cpu().numpy()
+    model.train()
+    return picks, decoded
+
+
+def reconstruction_image(model: VQVAE, frames: np.ndarray, n: int = 6) -> np.ndarray:
+    """RGB (3 · 48 + 2, n · 49 − 1, 3): per column a true frame over its reconstruction over the error panel."""
+    from dynplan.render import comparison_columns
+
+    return comparison_columns(*_reconstructed(model, frames, n))
+
+
 def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 6) -> None:
     """A PNG: true frames over their mid-point reconstructions and the error panel."""
     import matplotlib
@@ -71,11 +88,7 @@ def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 
 
     from dynplan.render import colorize, error_image
 
-    picks = frames[np.linspace(0, len(frames) - 1, n).astype(int)]
-    model.eval()
-    device = next(model.parameters()).device
-    decoded = model.decode(model.encode(torch.from_numpy(picks).to(device))).cpu().numpy()
-    model.train()
+    picks, decoded = _reconstructed(model, frames, n)
     fig, axes = plt.subplots(3, n, figsize=(2 * n, 6.4))
     for j in range(n):
         for i, (image, title) in enumerate([(colorize(picks[j]), "true"), (colorize(decoded[j]), "decoded"),
@@ -91,7 +104,8 @@ def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 
 
 
 def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQVAEConfig, budget: TrainBudget,
-                on_epoch: Callable[[dict], None] | None = None) -> Path:  # fmt: skip
+                on_epoch: Callable[[dict], None] | None = None,
+                tensorboard: str | os.PathLike | None = None) -> Path:  # fmt: skip
     """Train (or resume training of) a VQ-VAE in `out_dir` up to `budget.epochs`; returns the final checkpoint
     `out_dir/vqvae.pt`, or the latest one if `budget.max_minutes` stopped it first.
 
@@ -120,8 +134,9 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
 
     stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step,
                        evaluate=lambda: evaluate(model, val), epoch_end=epoch_end, plot=plot,
+                       images=lambda: {"reconstructions": reconstruction_image(model, val)},
                        unit="frames" if config.codebook_fit == "learned" else "patches")  # fmt: skip
-    return loop.train(out_dir, stage, budget, on_epoch)
+    return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
 
 
 Step = Callable[[torch.Generator], dict[str, float]]
