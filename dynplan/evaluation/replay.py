@@ -99,9 +99,11 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
     searches = learned or technique(planner).search
     agent = MCTSPlanner(mcts, agent_speed, config.max_steps, seed) if searches else RandomPlanner(seed)
     imagined: dict[int, np.ndarray] = {}
+    search: list[dict] = []
     panels: list[np.ndarray] = []
 
     def record(t: int, position: np.ndarray, prediction: Prediction | None, decision: Decision) -> None:
+        search.append(search_row(t, prediction, decision))
         if prediction is not None:
             imagined[t] = prediction.frames
         if gif is not None:
@@ -109,13 +111,27 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
 
     result = run_episode(world, agent, forward, agent_speed, rollout_steps, on_decision=record)
     if out is not None:
-        write_episode_log(out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None)
+        write_episode_log(out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None,
+                          search=search)  # fmt: skip
     if gif is not None:
         write_gif(gif, np.stack(panels), fps=8, scale=4)
     ms = np.asarray(result.decision_ms)
     return ReplayResult(str(log), planner, agent_speed, rollout_steps, result.outcome, result.steps,
                         round(float(np.median(ms)), 4), round(float(ms.mean()), 4),
                         None if out is None else str(out), None if gif is None else str(gif))  # fmt: skip
+
+
+def search_row(t: int, prediction: Prediction | None, decision: Decision) -> dict:
+    """A decision as the log's /planner/search row: the root's visits, Q and prior per action, its value (Q
+    averaged over the visits), the prediction's goal at t + 1 (None where it shows none) and the search's time."""
+    visits = np.asarray(decision.visits, np.float64)
+    value = float((visits * decision.q).sum() / visits.sum()) if visits.sum() else 0.0
+    goal = None
+    if prediction is not None and len(prediction.goal) and not np.isnan(prediction.goal[0, 0]):
+        goal = {"x": float(prediction.goal[0, 1]), "y": float(prediction.goal[0, 0])}
+    return {"t": int(t), "action": int(decision.action), "visits": [int(v) for v in decision.visits],
+            "q": [round(float(q), 6) for q in decision.q], "prior": [round(float(p), 6) for p in decision.prior],
+            "value": round(value, 6), "goal": goal, "search_ms": round(float(decision.search_ms), 4)}  # fmt: skip
 
 
 def _gif_panel(frames: np.ndarray, t: int, position: np.ndarray, prediction: Prediction | None, k: int) -> np.ndarray:

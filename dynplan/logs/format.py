@@ -10,6 +10,8 @@ Topics (log time = EPOCH + t · FRAME_PERIOD; each message's own timestamp is eq
 | /agent/step    | JSON (jsonschema)   | step    | (optional) {t, action, reward, outcome}                    |
 | /agent/view    | foxglove.RawImage   | step    | (optional) the world frame with the agent drawn (value 200) |
 | /planner/imagined | foxglove.RawImage | decision| (optional) the k predicted frames t+1 … t+k, side by side   |
+| /planner/search | JSON (jsonschema) | decision | (optional) the root: visits, Q, prior per action; value; goal |
+| /world/annotations | foxglove.ImageAnnotations | step | (optional) agent, true and predicted goal, action |
 
 The metadata record `dynplan` holds the format and version, the world config (JSON), seed, height, width,
 n_frames, agent_start (JSON) and the dynplan version. Log times start at a fixed epoch rather than the wall
@@ -18,7 +20,10 @@ clock, so the same seed always gives the same bytes and a log's checksum identif
 
 from __future__ import annotations
 
+import json
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -32,6 +37,8 @@ TOPIC_AGENT_POSE = "/agent/pose"
 TOPIC_AGENT_STEP = "/agent/step"
 TOPIC_AGENT_VIEW = "/agent/view"
 TOPIC_IMAGINED = "/planner/imagined"
+TOPIC_SEARCH = "/planner/search"
+TOPIC_ANNOTATIONS = "/world/annotations"
 
 SCHEMA_FRAME = "foxglove.RawImage"
 SCHEMA_POSE = "foxglove.PoseInFrame"
@@ -54,6 +61,23 @@ STEP_JSON_SCHEMA = {
         "outcome": {"type": "string", "enum": ["running", "goal", "death", "timeout"]},
     },
     "required": ["t", "action", "reward", "outcome"],
+}
+
+
+SEARCH_JSON_SCHEMA = {
+    "title": "dynplan.Search",
+    "type": "object",
+    "properties": {
+        "t": {"type": "integer", "description": "frame index of the decision"},
+        "action": {"type": "integer", "description": "the action chosen, 0-7"},
+        "visits": {"type": "array", "items": {"type": "integer"}, "description": "root visits per action"},
+        "q": {"type": "array", "items": {"type": "number"}, "description": "root mean value per action"},
+        "prior": {"type": "array", "items": {"type": "number"}, "description": "root prior per action"},
+        "value": {"type": "number", "description": "the root's value: Q averaged over the visits"},
+        "goal": {"type": ["object", "null"], "description": "predicted goal centre at t + 1 (x = col, y = row)"},
+        "search_ms": {"type": "number", "description": "the search's milliseconds (the prediction's not counted)"},
+    },
+    "required": ["t", "action", "visits", "q", "prior", "value", "goal", "search_ms"],
 }
 
 
@@ -88,3 +112,20 @@ class AgentTrack:
             )
         if len(self.outcome) != n - 1:
             raise ValueError(f"AgentTrack: {n} poses need {n - 1} outcomes, got {len(self.outcome)}")
+
+
+#: The Foxglove layout shipped for replay logs: the world frame with its annotations, the imagined frames, the
+#: agent's view, the search's statistics and the agent's path (open it in Foxglove: Layouts → Import).
+REPLAY_LAYOUT = Path(__file__).parent / "layouts" / "replay.json"
+
+
+def layout_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> set[str]:
+    """The topics a Foxglove layout's panels read: image and annotation topics, plots' and raw messages' paths."""
+    configs = json.loads(Path(layout).read_text())["configById"].values()
+    topics: set[str] = set()
+    for config in configs:
+        image = config.get("imageMode", {})
+        topics |= {image["imageTopic"], *image.get("annotations", {})} if "imageTopic" in image else set()
+        paths = [p["value"] for p in config.get("paths", [])] + ([config["topicPath"]] if "topicPath" in config else [])
+        topics |= {path.split(".")[0] for path in paths}
+    return topics

@@ -7,10 +7,16 @@ import os
 from pathlib import Path
 
 import numpy as np
+from foxglove_schemas_protobuf.CircleAnnotation_pb2 import CircleAnnotation
+from foxglove_schemas_protobuf.Color_pb2 import Color
+from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
+from foxglove_schemas_protobuf.Point2_pb2 import Point2
+from foxglove_schemas_protobuf.PointsAnnotation_pb2 import PointsAnnotation
 from foxglove_schemas_protobuf.Pose_pb2 import Pose
 from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.Quaternion_pb2 import Quaternion
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
+from foxglove_schemas_protobuf.TextAnnotation_pb2 import TextAnnotation
 from foxglove_schemas_protobuf.Vector3_pb2 import Vector3
 from google.protobuf.timestamp_pb2 import Timestamp
 from mcap.writer import CompressionType
@@ -24,13 +30,16 @@ from dynplan.logs.format import (
     FORMAT_VERSION,
     FRAME_ID,
     METADATA_NAME,
+    SEARCH_JSON_SCHEMA,
     STEP_JSON_SCHEMA,
     TOPIC_AGENT_POSE,
     TOPIC_AGENT_STEP,
     TOPIC_AGENT_VIEW,
+    TOPIC_ANNOTATIONS,
     TOPIC_FRAME,
     TOPIC_GOAL,
     TOPIC_IMAGINED,
+    TOPIC_SEARCH,
     AgentTrack,
     log_time,
 )
@@ -78,10 +87,12 @@ def episode_metadata(world: World, n_frames: int, kind: str) -> dict[str, str]:
 
 
 def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack | None = None,
-                      n_frames: int | None = None, imagined: dict[int, np.ndarray] | None = None) -> Path:  # fmt: skip
+                      n_frames: int | None = None, imagined: dict[int, np.ndarray] | None = None,
+                      search: list[dict] | None = None) -> Path:  # fmt: skip
     """Write `world`'s first `n_frames` frames (default all) and goal track to `path`, plus, for a replay, the
-    `agent`'s track (pose, step, and its view: the frame with the agent drawn) and the planner's `imagined`
-    frames per decision ({t: (k, H, W) predicted frames t+1 … t+k}).
+    `agent`'s track (pose, step, its view: the frame with the agent drawn, and annotations over the frame), the
+    planner's `imagined` frames per decision ({t: (k, H, W) predicted frames t+1 … t+k}) and its `search` rows
+    per decision (`SEARCH_JSON_SCHEMA`: the root's visits, Q and prior, its value and the predicted goal).
 
     The file appears only when complete (temporary file, then rename).
     """
@@ -107,6 +118,21 @@ def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack |
             for i, t in enumerate(agent.t):
                 time = log_time(int(t))
                 writer.add_message(view_channel, time, _image(int(t), views[i]).SerializeToString(), time, i)
+        if agent is not None:
+            decisions = {row["t"]: row for row in search or []}
+            annotation_schema = register_schema(writer, ImageAnnotations)
+            annotation_channel = writer.register_channel(TOPIC_ANNOTATIONS, "protobuf", annotation_schema)
+            for i, t in enumerate(agent.t):
+                t, time = int(t), log_time(int(t))
+                marks = annotations(t, agent.position[i], world.goal[t], world.config.height, decisions.get(t))
+                writer.add_message(annotation_channel, time, marks.SerializeToString(), time, i)
+        if search:
+            search_json = json.dumps(SEARCH_JSON_SCHEMA).encode()
+            search_schema = writer.register_schema("dynplan.Search", "jsonschema", search_json)
+            search_channel = writer.register_channel(TOPIC_SEARCH, "json", search_schema)
+            for i, row in enumerate(search):
+                time = log_time(int(row["t"]))
+                writer.add_message(search_channel, time, json.dumps(row).encode(), time, i)
         if imagined:
             imagined_channel = writer.register_channel(TOPIC_IMAGINED, "protobuf", frame_schema)
             for i, (t, frames) in enumerate(sorted(imagined.items())):
@@ -128,3 +154,46 @@ def _write_agent(writer: McapWriter, agent: AgentTrack, pose_schema: int) -> Non
             step = {"t": int(t), "action": int(agent.action[i - 1]), "reward": float(agent.reward[i - 1]),
                     "outcome": agent.outcome[i - 1]}  # fmt: skip
             writer.add_message(step_channel, time, json.dumps(step).encode(), time, i)
+
+
+AGENT_COLOUR = Color(r=1.0, g=0.2, b=0.2, a=1.0)
+GOAL_COLOUR = Color(r=1.0, g=0.9, b=0.1, a=1.0)
+PREDICTED_GOAL_COLOUR = Color(r=1.0, g=0.55, b=0.0, a=1.0)
+ACTION_COLOUR = Color(r=1.0, g=1.0, b=1.0, a=1.0)
+
+
+def _point(y: float, x: float, height: int) -> Point2:
+    """World (y, x), row 0 at the bottom and pixel centres on integers → image coordinates (pixel corners on
+    integers, row 0 at the top)."""
+    return Point2(x=float(x) + 0.5, y=height - 0.5 - float(y))
+
+
+def _block(lower_left: np.ndarray, height: int, colour: Color, t: int) -> PointsAnnotation:
+    """The outline of a 2 × 2 goal block whose lower-left pixel is at world (y, x)."""
+    y, x = float(lower_left[0]), float(lower_left[1])
+    corners = [(x, height - 2 - y), (x + 2, height - 2 - y), (x + 2, height - y), (x, height - y)]
+    return PointsAnnotation(timestamp=_stamp(t), type=PointsAnnotation.LINE_LOOP, outline_color=colour, thickness=1,
+                            points=[Point2(x=a, y=b) for a, b in corners])  # fmt: skip
+
+
+def annotations(t: int, agent: np.ndarray, goal: np.ndarray, height: int, decision: dict | None) -> ImageAnnotations:
+    """What a viewer draws over /world/frame at frame `t`: the agent (a circle), the true goal block, and for a
+    decision the predicted goal at t + 1 and the chosen action (an arrow and its heading in degrees)."""
+    from dynplan.env.agent import ACTION_ANGLES_DEG
+
+    centre = _point(agent[0], agent[1], height)
+    marks = ImageAnnotations(circles=[CircleAnnotation(timestamp=_stamp(t), position=centre, diameter=3.0,
+                                                       thickness=1.0, outline_color=AGENT_COLOUR)],
+                             points=[_block(goal, height, GOAL_COLOUR, t)])  # fmt: skip
+    if decision is not None:
+        if decision.get("goal") is not None:  # a block's centre is its lower-left pixel + 0.5
+            aimed = np.array([decision["goal"]["y"], decision["goal"]["x"]]) - 0.5
+            marks.points.append(_block(aimed, height, PREDICTED_GOAL_COLOUR, t))
+        angle = float(ACTION_ANGLES_DEG[decision["action"]])
+        tip = Point2(x=centre.x + 4 * np.cos(np.deg2rad(angle)), y=centre.y - 4 * np.sin(np.deg2rad(angle)))
+        marks.points.append(PointsAnnotation(timestamp=_stamp(t), type=PointsAnnotation.LINE_LIST, points=[centre, tip],
+                                             outline_color=ACTION_COLOUR, thickness=1))  # fmt: skip
+        marks.texts.append(TextAnnotation(timestamp=_stamp(t), position=Point2(x=1.0, y=1.0), font_size=4.0,
+                                          text=f"t={t} action {decision['action']} ({angle:g}°)",
+                                          text_color=ACTION_COLOUR))  # fmt: skip
+    return marks
