@@ -78,14 +78,14 @@ def widen_obstacles(frames: np.ndarray, margin: int) -> np.ndarray:
 #: measured by `python -m dynplan.bench generation` (the crossover lies between 4 and 16 grids).
 BATCHED_FROM = 8
 
-_KERNELS: weakref.WeakKeyDictionary[ConditionalPixelCNN, dict] = weakref.WeakKeyDictionary()
+_LAYOUTS: weakref.WeakKeyDictionary[ConditionalPixelCNN, dict] = weakref.WeakKeyDictionary()
 
 
 def _frozen(prior: ConditionalPixelCNN, layout: str) -> KernelWeights | BatchedWeights:
     """The prior's weights laid out for generation — "kernel" for the compiled kernel, else a device for the batched
     generation — once per prior: a world model never trains its prior, and an evaluation builds one model per
     episode on the same prior."""
-    layouts = _KERNELS.setdefault(prior, {})
+    layouts = _LAYOUTS.setdefault(prior, {})
     if layout not in layouts:
         layouts[layout] = kernel_weights(prior) if layout == "kernel" else batched_weights(prior, layout)
     return layouts[layout]
