@@ -128,10 +128,12 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
         played.advance(sizes[future.task_run_id])
         if role == "evaluation":  # a stopped evaluation still leaves an up-to-date table
             write_table(aggregate(load_results(results_dir)), results_dir)
-    if role == "evaluation":
-        write_table(aggregate(load_results(results_dir)), results_dir)
     rows = aggregate(store_run.current())
-    publish_table1(aggregate(load_results(results_dir)) if role == "evaluation" else rows, artifacts or run)
+    table = rows
+    if role == "evaluation":  # Table 1 is every evaluation run's
+        table = aggregate(load_results(results_dir))
+        write_table(table, results_dir)
+    publish_table1(table, artifacts or run)
     print(f"\nrun {run!r} ({role}):\n" + render_markdown(rows))
     return rows
 

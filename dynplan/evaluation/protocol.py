@@ -75,8 +75,8 @@ def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playo
     caution. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`); `caution`:
     what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05}); `device`:
     where learned models generate (not part of a row's provenance: the same arithmetic, up to float summation
-    order). A row's
-    `wall_s` is its episode's share of the batch: reading its log, building its agent and its decisions."""
+    order). A row's `wall_s` is its episode's share of the batch: reading its log, building its agent and its
+    decisions."""
     rows: list[dict | None] = [None] * len(cases)
     todo: dict[tuple, list[int]] = {}
     provenances = [case_provenance(case, log_dir, playouts, model_dir, caution) for case in cases]
