@@ -167,8 +167,8 @@ def test_the_kernels_weights_are_named_as_the_kernel_takes_them_and_follow_the_m
     from dynplan.models.generation import KernelWeights, _generate_grid, generate_fast, kernel_weights
 
     params = list(inspect.signature(_generate_grid.py_func).parameters)
-    inputs = ["cond_v", "cond_h", "temperature", "uniforms", "table", "expected"]
-    assert params[:6] == inputs and params[6:] == list(KernelWeights._fields)
+    inputs = ["cond_v", "cond_h", "temperature", "uniforms", "table", "expected", "codes"]
+    assert params[:7] == inputs and params[7:] == list(KernelWeights._fields)
     torch.manual_seed(0)
     model = ConditionalPixelCNN(SMALL.model_copy(update={"codebook_size": 16})).eval()
     context = torch.randint(0, 16, (2, 4, 6, 6))
@@ -220,3 +220,41 @@ def test_prior_curves_plot_and_name_a_bad_run_argument(tmp_path, capsys):
     with pytest.raises(SystemExit):
         prior_curves.main([str(tmp_path / "a.csv"), "--plot", str(tmp_path / "d.png")])
     assert "is not NAME=METRICS_CSV" in capsys.readouterr().err
+
+
+def test_the_kernels_exp_and_gate_match_libm():
+    import numpy as np
+
+    from dynplan.models.generation import _exp_inplace, _gate
+
+    x = np.linspace(-87.0, 0.0, 200_001).astype(np.float32)
+    exact = np.exp(x.astype(np.float64))
+    out = x.copy()
+    total = _exp_inplace(out, np.zeros(len(x), np.int32))
+    assert np.max(np.abs(out - exact) / exact) < 3e-7
+    assert total == pytest.approx(exact.sum(), rel=1e-5)
+    pre = np.random.default_rng(0).normal(0.0, 4.0, 64).astype(np.float32)
+    pre[:4] = [0.0, -0.0, 1e-8, 30.0]
+    gated = np.zeros(32, np.float32)
+    _gate(pre, gated, np.zeros(64, np.float32), np.zeros(64, np.int32))
+    want = np.tanh(pre[:32].astype(np.float64)) / (1.0 + np.exp(-pre[32:].astype(np.float64)))
+    assert np.max(np.abs(gated - want)) < 2e-7
+
+
+def test_the_kernels_row_blocks_give_each_row_its_grid_alone():
+    from dynplan.models.generation import generate_fast
+
+    torch.manual_seed(5)
+    model = ConditionalPixelCNN(SMALL.model_copy(update={"codebook_size": 32})).eval()
+    context = torch.randint(0, 32, (5, 4, 6, 6))
+    threads = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)  # two blocks of rows on the kernel's threads
+        together = generate_fast(model, context, temperature=1.0, generator=torch.Generator().manual_seed(1))
+        torch.set_num_threads(1)
+        alone = generate_fast(model, context, temperature=1.0, generator=torch.Generator().manual_seed(1))
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(together, alone)
+    assert all(torch.equal(generate_fast(model, context[i : i + 1]), generate_fast(model, context)[i : i + 1])
+               for i in range(5))  # fmt: skip

@@ -198,3 +198,23 @@ def test_prediction_error_curves_and_figure(tiny_model, tmp_path):
     plot_errors({"oracle": perfect, "tiny": learned}, tmp_path / "errors.png")
     figure1(LearnedWorldModel(tokenizer, prior, samples=2), tmp_path / "figure1.png", steps=(1, 2))
     assert (tmp_path / "errors.png").stat().st_size > 1000 and (tmp_path / "figure1.png").stat().st_size > 1000
+
+
+def test_observed_frames_are_encoded_once_and_as_alone(tiny_model, monkeypatch):
+    tokenizer, prior = tiny_model
+    frames = generate_world(RoadConfig(), 3).frames
+    from dynplan.models.world_model import _ENCODED
+
+    _ENCODED.pop(tokenizer, None)  # what earlier tests encoded with this tokenizer
+    model = LearnedWorldModel(tokenizer, prior)
+    encoded = []
+    encode = tokenizer.encode
+    monkeypatch.setattr(tokenizer, "encode", lambda x: encoded.append(len(x)) or encode(x))
+    first = model.encode_context(frames[:4])
+    second = model.encode_context(frames[:5])  # the next decision's context: one new frame
+    assert encoded == [4, 1]
+    with torch.inference_mode():
+        direct = encode(torch.from_numpy(np.ascontiguousarray(frames[1:5])))
+    assert torch.equal(second, direct) and torch.equal(first[1:], second[:3])
+    LearnedWorldModel(tokenizer, prior, samples=2).encode_context(frames[2:6])  # another model on the same tokenizer
+    assert encoded == [4, 1, 1]

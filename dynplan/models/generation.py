@@ -16,6 +16,8 @@ the tests check does not change a choice.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numba
@@ -76,15 +78,37 @@ def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature
         uniforms = draw_uniforms(B, H, W, temperature, generator)
     conditions = model.layer_conditions(model.condition(context))  # (B, h, w, L, 2, 2C)
 
-    def channels_last(gate: int) -> np.ndarray:  # → (L, B, h, w, 2C)
-        return np.ascontiguousarray(conditions[..., gate, :].permute(3, 0, 1, 2, 4).numpy(), dtype=np.float32)
+    def channels_last(gate: int) -> np.ndarray:  # → (B, L, h, w, 2C)
+        return np.ascontiguousarray(conditions[..., gate, :].permute(0, 3, 1, 2, 4).numpy(), dtype=np.float32)
 
     weights = kernel_weights(model) if weights is None else weights
     lookup = np.zeros((0, 1), np.float32) if table is None else np.ascontiguousarray(table.T, dtype=np.float32)
     expected = np.zeros((B, H, W, lookup.shape[0]), np.float32)
-    codes = _generate_grid(channels_last(0), channels_last(1), float(temperature), uniforms.numpy(),
-                           lookup, expected, *weights)  # fmt: skip
+    cond_v, cond_h, numbers = channels_last(0), channels_last(1), uniforms.numpy()
+    codes = np.zeros((B, H, W), np.int64)
+
+    def rows(start: int, stop: int) -> None:
+        _generate_grid(cond_v[start:stop], cond_h[start:stop], float(temperature), numbers[start:stop], lookup,
+                       expected[start:stop], codes[start:stop], *weights)  # fmt: skip
+
+    # The kernel releases the GIL: torch's thread count of row blocks generate at once, each on its own grids.
+    blocks = min(B, torch.get_num_threads())
+    bounds = [B * n // blocks for n in range(blocks + 1)]
+    if blocks > 1:
+        list(_pool().map(rows, bounds[:-1], bounds[1:]))
+    else:
+        rows(0, B)
     return torch.from_numpy(codes) if table is None else (torch.from_numpy(codes), expected)
+
+
+_POOL: list[ThreadPoolExecutor] = []
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The process's threads for `generate_fast`'s row blocks (as many as the machine has cores), made at first use."""
+    if not _POOL:
+        _POOL.append(ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="dynplan-generate"))
+    return _POOL[0]
 
 
 def _taps(weight: torch.Tensor, mask_a: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -158,15 +182,67 @@ def _add_scaled(acc, weights, x):
                 acc[o] += row[o] * value
 
 
+@numba.njit(cache=True, inline="always")
+def _add_product(acc, weights, x):
+    """acc += weightsᵀ · x, as `_add_scaled` without its test for zero inputs (for inputs that are seldom zero)."""
+    for c in range(x.shape[0]):
+        value = x[c]
+        row = weights[c]
+        for o in range(acc.shape[0]):
+            acc[o] += row[o] * value
+
+
+#: exp's range reduction (Cody–Waite: ln 2 split so that n · LN2_HI is exact) and Cephes' minimax polynomial
+#: for e^r on |r| ≤ ln 2 / 2 (relative error below 3e-7 over the float32 range).
+_LOG2E, _LN2_HI, _LN2_LO = np.float32(1.4426950408889634), np.float32(0.693359375), np.float32(-2.12194440e-4)
+_EXP_POLY = (1.9875691500e-4, 1.3981999507e-3, 8.3334519073e-3, 4.1665795894e-2, 1.6666665459e-1, 5.0000001201e-1)
+
+
+@numba.njit(cache=True, fastmath=True, inline="always")
+def _exp_inplace(x, bits):
+    """x[q] ← exp(x[q]) for x ≤ 0 (float32), written so that the compiler vectorises it — no call per element:
+    libm's expf is scalar, and it took most of the softmax's and the gates' time. `bits` (int32, at least len(x)):
+    scratch for 2^n, built by bit arithmetic; below e^−87 it flushes to e^−87. Returns Σ x."""
+    n_elements = x.shape[0]
+    scale = bits.view(np.float32)
+    p0, p1, p2, p3, p4, p5 = [np.float32(c) for c in _EXP_POLY]
+    for q in range(n_elements):
+        v = max(x[q], np.float32(-87.0))
+        n = np.floor(v * _LOG2E + np.float32(0.5))
+        r = v - n * _LN2_HI - n * _LN2_LO
+        p = ((((p0 * r + p1) * r + p2) * r + p3) * r + p4) * r + p5
+        x[q] = p * r * r + r + np.float32(1.0)
+        bits[q] = (np.int32(n) + np.int32(127)) << np.int32(23)
+    total = np.float32(0.0)
+    for q in range(n_elements):
+        x[q] *= scale[q]
+        total += x[q]
+    return total
+
+
+@numba.njit(cache=True, fastmath=True, inline="always")
+def _gate(pre, out, buf, bits):
+    """out[c] = tanh(pre[c]) · sigmoid(pre[C + c]) for pre (2C,), out (C,), both from exp(−|·|) ≤ 1 (`_exp_inplace`,
+    vectorised; absolute error below 1e-7); `buf` (≥ 2C) float32 and `bits` (≥ 2C) int32 are scratch."""
+    C = out.shape[0]
+    for c in range(C):
+        buf[c] = np.float32(-2.0) * abs(pre[c])
+        buf[C + c] = -abs(pre[C + c])
+    _exp_inplace(buf[: 2 * C], bits)
+    for c in range(C):
+        e, f = buf[c], buf[C + c]
+        t = (np.float32(1.0) - e) / (np.float32(1.0) + e)
+        s = np.float32(1.0) if pre[C + c] >= 0.0 else f
+        out[c] = (t if pre[c] >= 0.0 else -t) * (s / (np.float32(1.0) + f))
+
+
 @numba.njit(cache=True, fastmath=True)
-def _expected(logits, top, table, probs, out):
+def _expected(logits, top, table, probs, bits, out):
     """out[p] = Σ_q softmax(logits)_q · table[p, q] for table (P, K) (vectorised: its sums' order is the compiler's,
     fixed for a build)."""
-    total = np.float32(0.0)
     for q in range(logits.shape[0]):
-        probs[q] = np.exp(logits[q] - top)
-        total += probs[q]
-    scale = np.float32(1.0) / total
+        probs[q] = logits[q] - top
+    scale = np.float32(1.0) / _exp_inplace(probs, bits)
     for p in range(table.shape[0]):
         acc = np.float32(0.0)
         for q in range(logits.shape[0]):
@@ -190,23 +266,22 @@ def _inverse_transform(logits, temperature, u, cdf):
 
 
 @numba.njit(cache=True, nogil=True)  # episodes on a thread pool generate in parallel
-def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, v_offsets, v_weight, v_taps, v_bias,
+def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, codes, v_offsets, v_weight, v_taps, v_bias,
                    v2h_weight, v2h_bias, h_offsets, h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1,
                    w2, b2, embed):  # fmt: skip
     """Generation of whole code grids (compiled): vertical stacks row by row, horizontal stacks and the head
     position by position; each code the argmax (temperature 0) or drawn by inverse transform of the softmax at
     `temperature` with that position's number from `uniforms` (B, H, W) — as `pixelcnn.pick` does.
 
-    cond_v, cond_h: (L, B, H, W, 2C) each layer's conditioning for its vertical and horizontal gates
+    cond_v, cond_h: (B, L, H, W, 2C) each layer's conditioning for its vertical and horizontal gates
     table (P, K): with rows, `expected` (B, H, W, P) receives Σ_q softmax(logits)_q · table[:, q] at each position
     v_offsets (L, T, 2) / v_weight (L, T, C, 2C) / v_taps (L,): each layer's vertical taps, (row, col) offsets
     h_offsets (L, T) / h_weight (L, T, C, 2C) / h_taps (L,): horizontal taps, column offsets
     *_weight of 1 × 1 convolutions and the head: (C_in, C_out); embed (K, C)
-    returns codes (B, H, W) int64
+    codes (B, H, W) int64 receives the codes
     """
-    L, B, H, W, C2 = cond_v.shape
+    B, L, H, W, C2 = cond_v.shape
     C = C2 // 2
-    codes = np.zeros((B, H, W), np.int64)
     x = np.zeros((H, W, C), np.float32)  # embedded codes generated so far: input of layer 0's stacks
     v_in = np.zeros((L, H, W, C), np.float32)  # input of each layer's vertical stack (layer 0 reads x)
     h = np.zeros((L + 1, W, C), np.float32)  # the current row's horizontal features; h[0] unused (x)
@@ -218,6 +293,9 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, v_off
     logits = np.zeros(w2.shape[1], np.float32)
     cdf = np.zeros(w2.shape[1], np.float64)
     probs = np.zeros(w2.shape[1], np.float32)
+    bits = np.zeros(max(w2.shape[1], C2), np.int32)
+    scratch = np.zeros(C2, np.float32)
+    row = np.zeros((W, C2), np.float32)  # a layer's vertical pre-activations along row i
     for b in range(B):
         x[:] = 0.0
         v_in[:] = 0.0
@@ -225,31 +303,32 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, v_off
             for layer in range(L):
                 source = x if layer == 0 else v_in[layer]
                 for j in range(W):
-                    acc[:] = v_bias[layer]
-                    for t in range(v_taps[layer]):
-                        r, c = i + v_offsets[layer, t, 0], j + v_offsets[layer, t, 1]
-                        if r >= 0 and 0 <= c < W:
-                            _add_scaled(acc, v_weight[layer, t], source[r, c])
+                    row[j] = v_bias[layer]
+                # Tap by tap over the whole row: each weight matrix is read once per row, not once per position.
+                for t in range(v_taps[layer]):
+                    r, dc = i + v_offsets[layer, t, 0], v_offsets[layer, t, 1]
+                    if r >= 0:
+                        for j in range(max(0, -dc), min(W, W - dc)):
+                            _add_product(row[j], v_weight[layer, t], source[r, j + dc])
+                for j in range(W):
                     if layer + 1 < L:
-                        for c in range(C):
-                            a = acc[c] + cond_v[layer, b, i, j, c]
-                            g = acc[C + c] + cond_v[layer, b, i, j, C + c]
-                            v_in[layer + 1, i, j, c] = np.tanh(a) / (1.0 + np.exp(-g))
+                        for o in range(C2):
+                            acc[o] = row[j, o] + cond_v[b, layer, i, j, o]
+                        _gate(acc, v_in[layer + 1, i, j], scratch, bits)
                     to_h[layer, j] = v2h_bias[layer]
-                    _add_scaled(to_h[layer, j], v2h_weight[layer], acc)
+                    _add_product(to_h[layer, j], v2h_weight[layer], row[j])
             for j in range(W):
                 for layer in range(L):
                     source = x[i] if layer == 0 else h[layer]
                     for o in range(C2):
-                        acc[o] = h_bias[layer, o] + (to_h[layer, j, o] + cond_h[layer, b, i, j, o])
+                        acc[o] = h_bias[layer, o] + (to_h[layer, j, o] + cond_h[b, layer, i, j, o])
                     for t in range(h_taps[layer]):
                         c = j + h_offsets[layer, t]
                         if c >= 0:
-                            _add_scaled(acc, h_weight[layer, t], source[c])
-                    for c in range(C):
-                        gated[c] = np.tanh(acc[c]) / (1.0 + np.exp(-acc[C + c]))
+                            _add_product(acc, h_weight[layer, t], source[c])
+                    _gate(acc, gated, scratch, bits)
                     out[:] = out_bias[layer]
-                    _add_scaled(out, out_weight[layer], gated)
+                    _add_product(out, out_weight[layer], gated)
                     for c in range(C):
                         h[layer + 1, j, c] = out[c] + (source[j, c] if residual[layer] else 0.0)
                 for c in range(C):
@@ -262,9 +341,8 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, v_off
                 _add_scaled(logits, w2, hidden)
                 code = np.argmax(logits)
                 if table.shape[0] > 0:
-                    _expected(logits, logits[code], table, probs, expected[b, i, j])
+                    _expected(logits, logits[code], table, probs, bits, expected[b, i, j])
                 if temperature > 0.0:
                     code = _inverse_transform(logits, temperature, uniforms[b, i, j], cdf)
                 codes[b, i, j] = code
                 x[i, j] = embed[code]
-    return codes

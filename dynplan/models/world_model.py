@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import weakref
+from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -74,11 +75,17 @@ def widen_obstacles(frames: np.ndarray, margin: int) -> np.ndarray:
 
 
 #: Grids generated together from which the batched generation (`batched.generate_batched`: matrix–matrix products
-#: over the batch) is used on the CPU instead of the compiled kernel, which costs the same per grid at any batch;
-#: measured by `python -m dynplan.bench generation` (the crossover lies between 4 and 16 grids).
-BATCHED_FROM = 8
+#: over the batch) is used on the CPU instead of the compiled kernel (whose row blocks run on torch's threads);
+#: measured by `python -m dynplan.bench generation` (on 2 cores the batched generation is cheaper per grid of the
+#: default prior from between 32 and 100 rows).
+BATCHED_FROM = 64
 
 _LAYOUTS: weakref.WeakKeyDictionary[ConditionalPixelCNN, dict] = weakref.WeakKeyDictionary()
+
+#: Observed frames whose codes each tokenizer keeps (the most recently used): a lockstep batch of episodes needs
+#: `context` per episode at each step, and an evaluation's cases replay the same recorded worlds.
+ENCODED_FRAMES = 4096
+_ENCODED: weakref.WeakKeyDictionary[VQVAE, OrderedDict] = weakref.WeakKeyDictionary()
 
 
 def _frozen(prior: ConditionalPixelCNN, layout: str) -> KernelWeights | BatchedWeights:
@@ -146,13 +153,26 @@ class LearnedWorldModel:
         return self._encode_contexts([observed])[0]
 
     def _encode_contexts(self, observed: Sequence[np.ndarray]) -> torch.Tensor:
-        """(E, context, h, w) code grids of the last `context` frames of each of E observations, in one pass."""
+        """(E, context, h, w) code grids of the last `context` frames of each of E observations, in one pass over
+        the frames the tokenizer has not encoded lately (`_ENCODED`: the next decision's context shares all but
+        one frame with this one's)."""
         short = [len(o) for o in observed if len(o) < self.context]
         if short:
             raise ValueError(f"the model needs the last {self.context} frames, got {short[0]}")
-        frames = np.stack([o[-self.context :] for o in observed])  # (E, context, H, W)
-        codes = self.tokenizer.encode(torch.from_numpy(np.ascontiguousarray(frames.reshape(-1, *frames.shape[2:]))))
-        return codes.reshape(len(observed), self.context, *codes.shape[1:])
+        frames = [np.ascontiguousarray(frame) for o in observed for frame in o[-self.context :]]
+        known = _ENCODED.setdefault(self.tokenizer, OrderedDict())
+        keys = [(frame.shape, frame.tobytes()) for frame in frames]
+        missing = list(dict.fromkeys(key for key in keys if key not in known))
+        if missing:
+            rows = {key: i for i, key in enumerate(keys)}
+            codes = self.tokenizer.encode(torch.from_numpy(np.stack([frames[rows[key]] for key in missing])))
+            known.update(zip(missing, codes, strict=True))
+        grids = torch.stack([known[key] for key in keys])
+        for key in keys:
+            known.move_to_end(key)
+        while len(known) > ENCODED_FRAMES:
+            known.popitem(last=False)
+        return grids.reshape(len(observed), self.context, *grids.shape[1:])
 
     @torch.inference_mode()
     def predict_codes(self, observed: np.ndarray, k: int, futures: int = 1, temperature: float = 0.0) -> torch.Tensor:
