@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 
 from prefect import flow
@@ -16,7 +17,9 @@ from prefect import flow
 from dynplan.config import ConfigError
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
 from dynplan.evaluation.techniques import TECHNIQUES
+from dynplan.extras import MissingExtra, require
 from dynplan.files import check_output
+from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.models.registry import WORLD_MODELS
 from flows.cli import add_debug_option, run
@@ -36,10 +39,19 @@ def replay_episode(
     samples: int = 0,
     futures: int = 0,
     model_dir: str | None = None,
+    live_port: int | None = None,
+    live_wait_s: float = 30.0,
+    live_fps: float = 8.0,
 ) -> dict:
-    """Replay one recorded episode through a planner."""
-    result = replay(log, planner, agent_speed, rollout_steps, playouts, out, gif, seed, model, samples, futures,
-                    model_dir)  # fmt: skip
+    """Replay one recorded episode through a planner; with `live_port`, also serve it live to Foxglove."""
+    with LiveView(port=live_port) if live_port is not None else nullcontext() as view:
+        if view is not None:
+            print(f"serving the episode live on {view.url} (Foxglove: Open connection, Foxglove WebSocket); "
+                  f"waiting up to {live_wait_s:g} s for a viewer")  # fmt: skip
+            if not view.wait_for_viewer(live_wait_s):
+                print("no viewer connected; replaying anyway")
+        result = replay(log, planner, agent_speed, rollout_steps, playouts, out, gif, seed, model, samples, futures,
+                        model_dir, view, 0.0 if view is None else 1.0 / live_fps)  # fmt: skip
     result = result.to_dict()
     print(f"{result['outcome']} after {result['steps']} steps; decision {result['decision_ms_median']:.3f} ms "
           f"(median), {result['decision_ms_mean']:.3f} ms (mean); replay log: {result['out']}")  # fmt: skip
@@ -71,12 +83,25 @@ def main(argv: list[str] | None = None) -> dict:
                         "(default: the committed ones)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="seed of the planner's own randomness (>= 0)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    parser.add_argument("--live", action="store_true",
+                        help="also serve the episode over the Foxglove WebSocket protocol while it is planned "
+                             "(the layout dynplan/logs/layouts/replay.json shows it; the live extra)")  # fmt: skip
+    parser.add_argument("--live-port", type=int, default=DEFAULT_PORT, help="the live view's port (0: any free one)")
+    parser.add_argument("--live-wait", type=float, default=30.0,
+                        help="seconds to wait for a viewer to subscribe before it starts (default 30)")  # fmt: skip
+    parser.add_argument("--live-fps", type=float, default=8.0, help="decisions shown per second at most (default 8)")
     add_debug_option(parser)
     args = parser.parse_args(argv)
     out = args.out or str(default_outputs(args.log, args.planner, args.model, args.samples, args.futures))
     try:  # fail fast, with one line, before any flow machinery starts
         if not 0 <= args.seed < 2**32:
             raise ValueError(f"--seed={args.seed} is invalid; valid range [0, 2**32)")
+        if args.live:
+            if not 0 <= args.live_port < 65536:
+                raise ValueError(f"--live-port={args.live_port} is invalid; valid range [0, 65535]")
+            if not (args.live_fps > 0 and args.live_wait >= 0):
+                raise ValueError(f"--live-fps must be > 0 and --live-wait >= 0, got {args.live_fps}, {args.live_wait}")
+            require("foxglove", "live", "--live")
         check_output(out, "--out", "file", inputs=(args.log,))
         if args.gif:
             if Path(args.gif).resolve() == Path(out).resolve():
@@ -84,11 +109,12 @@ def main(argv: list[str] | None = None) -> dict:
             check_output(args.gif, "--gif", "file", inputs=(args.log,))
         prepare(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, args.model, args.samples,
                 args.futures, args.model_dir)  # fmt: skip
-    except (LogError, ConfigError, ValueError) as error:
+    except (LogError, ConfigError, ValueError, MissingExtra) as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
     result = replay_episode(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, out,
-                            args.gif, args.seed, args.model, args.samples, args.futures, args.model_dir)  # fmt: skip
+                            args.gif, args.seed, args.model, args.samples, args.futures, args.model_dir,
+                            args.live_port if args.live else None, args.live_wait, args.live_fps)  # fmt: skip
     if args.json:
         print(json.dumps(result))
     return result

@@ -8,14 +8,14 @@ from pathlib import Path
 PACKAGE = Path(__file__).resolve().parents[1] / "dynplan"
 #: Subpackage (or top-level module) → layer; a module may import its own layer and those below.
 LAYERS = {
-    "config": 0, "files": 0, "progress": 0, "version": 0,
+    "config": 0, "extras": 0, "files": 0, "progress": 0, "version": 0,
     "env": 1, "render": 1,
     "logs": 2,
     "data": 3, "planning": 3,
     "models": 4,
     "training": 5,
     "evaluation": 6,
-    "analysis": 7, "bench": 7,
+    "analysis": 7, "bench": 7, "play": 7,
     "pipeline": 8,
 }  # fmt: skip
 

@@ -8,13 +8,16 @@ goal yellow, predicted goal orange).
 from __future__ import annotations
 
 import os
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from dynplan.env.agent import FIRST_DECISION_FRAME
 from dynplan.env.config import RoadConfig
 from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, learned_model, technique
+from dynplan.logs.live import LiveView
 from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
 from dynplan.logs.writer import write_episode_log
 from dynplan.models.registry import WORLD_MODELS
@@ -83,11 +86,13 @@ class ReplayResult:
 def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float = 1.0, rollout_steps: int = 3,
            playouts: int = 100, out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None,
            seed: int = 0, model: str = "default", samples: int = 0, futures: int = 0,
-           model_dir: str | None = None) -> ReplayResult:  # fmt: skip
+           model_dir: str | None = None, live: LiveView | None = None,
+           pace_s: float = 0.0) -> ReplayResult:  # fmt: skip
     """Run `planner` (a registered technique — oracle, zero, random, mid, samples5, … with world model `model` for
     a learned one — or "model": the learned world model `model` merging `samples` decoder samples and `futures`
     sampled futures; its checkpoints under `model_dir/<model>/` if given, else the committed ones) on the episode
-    recorded in `log`."""
+    recorded in `log`. `live`: also publish every frame and decision there as it is planned, at least `pace_s`
+    seconds apart (a viewer follows the episode)."""
     recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts, model, samples, futures,
                                      model_dir)  # fmt: skip
     world = recorded.world()
@@ -102,14 +107,32 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
     search: list[dict] = []
     panels: list[np.ndarray] = []
 
+    shown = [time.perf_counter()]
+
     def record(t: int, position: np.ndarray, prediction: Prediction | None, decision: Decision) -> None:
         search.append(search_row(t, prediction, decision))
         if prediction is not None:
             imagined[t] = prediction.frames
         if gif is not None:
             panels.append(_gif_panel(world.frames, t, position, prediction, rollout_steps))
+        if live is not None:
+            time.sleep(max(0.0, shown[0] + pace_s - time.perf_counter()))
+            step = None if len(search) < 2 else {"t": t, "action": search[-2]["action"], "reward": 0.0,
+                                                 "outcome": "running"}  # fmt: skip
+            live.show(t, world.frames[t], world.goal[t], position, search[-1],
+                      None if prediction is None else prediction.frames, step)  # fmt: skip
+            shown[0] = time.perf_counter()
+
+    if live is not None:  # the frames observed before the first decision
+        for t in range(FIRST_DECISION_FRAME):
+            live.show(t, world.frames[t], world.goal[t])
 
     result = run_episode(world, agent, forward, agent_speed, rollout_steps, on_decision=record)
+    if live is not None:  # where the episode ended
+        track, last = result.track, int(result.track.t[-1])
+        step = {"t": last, "action": int(track.action[-1]), "reward": float(track.reward[-1]),
+                "outcome": track.outcome[-1]}  # fmt: skip
+        live.show(last, world.frames[last], world.goal[last], track.position[-1], step=step)
     if out is not None:
         write_episode_log(out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None,
                           search=search)  # fmt: skip

@@ -54,14 +54,16 @@ def _stamp(t: int) -> Timestamp:
     return Timestamp(seconds=ns // 10**9, nanos=ns % 10**9)
 
 
-def _pose(t: int, yx: np.ndarray) -> PoseInFrame:
+def pose_message(t: int, yx: np.ndarray) -> PoseInFrame:
+    """A world position (y, x) at frame `t` as a foxglove.PoseInFrame (x, y in the world's frame)."""
     position = Vector3(x=float(yx[1]), y=float(yx[0]), z=0.0)
     return PoseInFrame(
         timestamp=_stamp(t), frame_id=FRAME_ID, pose=Pose(position=position, orientation=Quaternion(w=1.0))
     )
 
 
-def _image(t: int, frame: np.ndarray) -> RawImage:
+def image_message(t: int, frame: np.ndarray) -> RawImage:
+    """Frame `t` (H, W) uint8 as a foxglove.RawImage (mono8)."""
     H, W = frame.shape
     # Images are stored top row first; the world's row 0 is the bottom.
     return RawImage(timestamp=_stamp(t), frame_id=FRAME_ID, width=W, height=H, encoding="mono8", step=W,
@@ -109,15 +111,15 @@ def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack |
         writer.add_metadata(METADATA_NAME, episode_metadata(world, n_frames, "world" if agent is None else "agent"))
         for t in range(n_frames):
             time = log_time(t)
-            writer.add_message(frame_channel, time, _image(t, world.frames[t]).SerializeToString(), time, t)
-            writer.add_message(goal_channel, time, _pose(t, world.goal[t]).SerializeToString(), time, t)
+            writer.add_message(frame_channel, time, image_message(t, world.frames[t]).SerializeToString(), time, t)
+            writer.add_message(goal_channel, time, pose_message(t, world.goal[t]).SerializeToString(), time, t)
         if agent is not None:
             _write_agent(writer, agent, pose_schema)
             view_channel = writer.register_channel(TOPIC_AGENT_VIEW, "protobuf", frame_schema)
             views = draw_agent(world.frames[agent.t], agent.position)
             for i, t in enumerate(agent.t):
                 time = log_time(int(t))
-                writer.add_message(view_channel, time, _image(int(t), views[i]).SerializeToString(), time, i)
+                writer.add_message(view_channel, time, image_message(int(t), views[i]).SerializeToString(), time, i)
         if agent is not None:
             decisions = {row["t"]: row for row in search or []}
             annotation_schema = register_schema(writer, ImageAnnotations)
@@ -138,7 +140,7 @@ def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack |
             for i, (t, frames) in enumerate(sorted(imagined.items())):
                 strip = np.concatenate(list(frames), axis=1)  # (H, k·W): predicted frames left to right
                 time = log_time(t)
-                writer.add_message(imagined_channel, time, _image(t, strip).SerializeToString(), time, i)
+                writer.add_message(imagined_channel, time, image_message(t, strip).SerializeToString(), time, i)
         writer.finish()
     return Path(path)
 
@@ -149,7 +151,7 @@ def _write_agent(writer: McapWriter, agent: AgentTrack, pose_schema: int) -> Non
     step_channel = writer.register_channel(TOPIC_AGENT_STEP, "json", step_schema)
     for i, t in enumerate(agent.t):
         time = log_time(int(t))
-        writer.add_message(pose_channel, time, _pose(int(t), agent.position[i]).SerializeToString(), time, i)
+        writer.add_message(pose_channel, time, pose_message(int(t), agent.position[i]).SerializeToString(), time, i)
         if i > 0:
             step = {"t": int(t), "action": int(agent.action[i - 1]), "reward": float(agent.reward[i - 1]),
                     "outcome": agent.outcome[i - 1]}  # fmt: skip

@@ -105,7 +105,7 @@ _POOL: list[ThreadPoolExecutor] = []
 
 
 def _pool() -> ThreadPoolExecutor:
-    """The process's threads for `generate_fast`'s row blocks (as many as the machine has cores), made when first needed."""
+    """The process's threads for `generate_fast`'s row blocks (one per core), made when first needed."""
     if not _POOL:
         _POOL.append(ThreadPoolExecutor(max_workers=os.cpu_count() or 1, thread_name_prefix="dynplan-generate"))
     return _POOL[0]

@@ -16,18 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
-INSTALL = "pip install -e '.[tensorboard]'"
+from dynplan.extras import MissingExtra, install_hint, require
 
-
-class MissingExtra(RuntimeError):
-    """The optional package an option needs is not installed."""
+INSTALL = install_hint("tensorboard")
+__all__ = ["INSTALL", "EpochWriter", "MissingExtra", "check_available", "read_images", "read_scalars"]
 
 
 def _summary_writer():
-    try:
-        from torch.utils.tensorboard import SummaryWriter
-    except ImportError:
-        raise MissingExtra(f"TensorBoard output needs the tensorboard package: {INSTALL}") from None
+    require("tensorboard", "tensorboard", "TensorBoard output")
+    from torch.utils.tensorboard import SummaryWriter
+
     return SummaryWriter
 
 

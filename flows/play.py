@@ -1,0 +1,241 @@
+"""`python -m flows.play`: steer the agent with the keyboard in the road world or in the world model's imagination,
+or watch the planner play.
+
+Modes:
+  you play       each key press moves the agent one step and the world one frame (the world does not wait
+                 otherwise: it is turn-based, as the planner plays)
+  imagination    the frames come from the learned world model (--model), rolled forward one at a time from
+                 the last four real frames; the agent is judged on them, and the true world is drawn beside
+  planner plays  the planner (--technique, oracle or learned) chooses every step; its predicted frame at the
+                 horizon k is drawn beside the truth
+
+Keys:
+  W E D C X Z A Q   move up, up-right, right, down-right, down, down-left, left, up-left (arrows: the four axes)
+  I                 switch between the real world and the imagination
+  K                 the planner's horizon k: 1, 3, 5, 10
+  P                 the planner plays / you play
+  SPACE             pause or resume the planner
+  R                 restart the episode
+  ESC               quit (with --record, the log is written first)
+
+With --live, every step is also served over the Foxglove WebSocket protocol (open it with the replay layout).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+
+from dynplan.env.agent import ACTION_ANGLES_DEG
+from dynplan.env.config import RoadConfig
+from dynplan.env.road import generate_world
+from dynplan.evaluation.cases import Case
+from dynplan.evaluation.protocol import case_agent
+from dynplan.evaluation.techniques import TECHNIQUES, technique
+from dynplan.extras import MissingExtra
+from dynplan.files import atomic_path
+from dynplan.logs.live import DEFAULT_PORT, LiveView
+from dynplan.logs.reader import LogError, read_episode_log
+from dynplan.models.checkpoint import CheckpointError
+from dynplan.models.registry import WORLD_MODELS
+from dynplan.play import HORIZONS, PlaySession
+from dynplan.render import colorize, error_image, upscale
+
+#: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
+MOVE_KEYS = {"w": 90, "e": 45, "d": 0, "c": -45, "x": -90, "z": -135, "a": 180, "q": 135,
+             "up": 90, "right": 0, "down": -90, "left": 180}  # fmt: skip
+INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame)"
+GAP = 8
+
+
+def action_of(heading: int) -> int:
+    """The action index of a heading in degrees (180 is −180)."""
+    angle = -180 if heading == 180 else heading
+    return int(np.flatnonzero(angle == ACTION_ANGLES_DEG)[0])
+
+
+def build_session(seed: int | None = None, log: str | None = None, agent_speed: float = 1.0, model: str = "default",
+                  technique_name: str = "oracle", k: int = 3, imagination: bool = True) -> PlaySession:  # fmt: skip
+    """The session of the world of `seed` or of the recorded `log`: the imagination from the learned world model
+    `model` (its mid-point frames, no caution: the frames as the model predicts them), the planner of
+    `technique_name` at horizon k."""
+    if log is not None:
+        world = read_episode_log(log).world()
+    else:
+        world = generate_world(RoadConfig(agent_speed=agent_speed), 2_000_000 if seed is None else seed)
+    imagined = None
+    if imagination:
+        from dynplan.models.world_model import load_world_model
+
+        imagined = load_world_model(model=model, caution={"occupancy": 0.0, "margin": 0})
+    chosen = technique(technique_name)
+    case = Case(technique_name, agent_speed, k if chosen.search else None, int(world.seed),
+                model if chosen.world_model else None)  # fmt: skip
+    planner, forward = case_agent(case, world)
+    return PlaySession(world, agent_speed, imagined, planner, forward, k)
+
+
+class Window:
+    """The pygame window: what you play in, the true world, and the divergence or the planner's prediction."""
+
+    def __init__(self, session: PlaySession, scale: int = 8):
+        import pygame
+
+        self.pygame, self.session, self.scale = pygame, session, scale
+        pygame.display.init()
+        pygame.font.init()
+        H, W = session.world.frames.shape[1:]
+        self.panel = (W * scale, H * scale)
+        self.screen = pygame.display.set_mode((3 * self.panel[0] + 4 * GAP, self.panel[1] + 150))
+        pygame.display.set_caption("dynplan play")
+        self.font = pygame.font.Font(None, 22)
+
+    def _blit(self, image: np.ndarray, column: int, title: str) -> None:
+        surface = self.pygame.surfarray.make_surface(upscale(image, self.scale).transpose(1, 0, 2))
+        x = GAP + column * (self.panel[0] + GAP)
+        self.screen.blit(surface, (x, 28))
+        self.screen.blit(self.font.render(title, True, (230, 230, 230)), (x, 6))
+
+    def draw(self, planner_plays: bool, paused: bool) -> None:
+        s = self.session
+        self.screen.fill((20, 20, 24))
+        self._blit(colorize(s.frame, s.position), 0, f"playing in the {s.place}")
+        self._blit(colorize(s.true_frame, s.position), 1, "the true world")
+        if s.place == "imagination":
+            self._blit(error_image(s.true_frame, s.frame), 2, "imagined vs true (red: missed, blue: extra)")
+        elif s.last_prediction is not None and planner_plays:
+            ahead = s.last_prediction.frames
+            self._blit(error_image(s.world.frames[min(s.t + len(ahead) - 1, len(s.world.frames) - 1)], ahead[-1]),
+                       2, f"predicted t + {len(ahead)} vs true")  # fmt: skip
+        who = ("planner plays" + (" (paused)" if paused else "")) if planner_plays else "you play"
+        lines = [f"t = {s.t}   {who}   k = {s.k}   outcome: {s.outcome}",
+                 "move: W E D C X Z A Q or arrows   I: imagination   K: horizon   P: planner/you   SPACE: pause",
+                 "R: restart   ESC: quit"]  # fmt: skip
+        for i, line in enumerate(lines):
+            self.screen.blit(self.font.render(line, True, (230, 230, 230)), (GAP, self.panel[1] + 40 + 24 * i))
+        self.pygame.display.flip()
+
+
+def publish(live: LiveView, session: PlaySession) -> None:
+    """Show the session's latest step on the live view: the frame it was judged on, the agent, the step, and the
+    planner's search and prediction when it chose the step."""
+    track, t = session.track, session.t
+    step = None
+    if len(track.action):
+        step = {"t": t, "action": int(track.action[-1]), "reward": float(track.reward[-1]),
+                "outcome": track.outcome[-1]}  # fmt: skip
+    decision = session.search[-1] if session.search and session.search[-1]["t"] == t - 1 else None
+    imagined = None if decision is None or session.last_prediction is None else session.last_prediction.frames
+    live.show(t, session.frame, session.world.goal[t], session.position, decision, imagined, step)
+
+
+def play(session: PlaySession, scale: int = 8, fps: float = 8.0, planner_plays: bool = False,
+         script: Iterable[str] | None = None, record: str | None = None, live: LiveView | None = None,
+         screenshot: str | None = None) -> PlaySession:  # fmt: skip
+    """Run the window until ESC or the window closes. `script`: key names fed in as real key events, one per frame
+    (then the window quits) — how the tests play it headless. `live`: also publish every step there;
+    `screenshot`: save the window's last picture there (PNG)."""
+    import pygame
+
+    window = Window(session, scale)
+    clock, paused, keys = pygame.time.Clock(), False, None if script is None else list(script)
+    try:
+        while True:
+            if keys is not None:
+                if not keys:
+                    break
+                pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.key.key_code(keys.pop(0))))
+            quit_now = False
+            for event in pygame.event.get():
+                if event.type == pygame.QUIT:
+                    quit_now = True
+                elif event.type == pygame.KEYDOWN:
+                    name = pygame.key.name(event.key)
+                    if name == "escape":
+                        quit_now = True
+                    elif name == "r":
+                        session.reset()
+                    elif name == "i" and session.imagination is not None:
+                        session.toggle_imagination()
+                    elif name == "k":
+                        session.cycle_horizon()
+                    elif name == "p":
+                        planner_plays = not planner_plays
+                    elif name == "space":
+                        paused = not paused
+                    elif name in MOVE_KEYS and session.running and not planner_plays:
+                        session.step(action_of(MOVE_KEYS[name]))
+                        if live is not None:
+                            publish(live, session)
+            if quit_now:
+                break
+            if planner_plays and not paused and session.running:
+                session.step(session.planner_action())
+                if live is not None:
+                    publish(live, session)
+            window.draw(planner_plays, paused)
+            clock.tick(fps)
+        if screenshot is not None:
+            with atomic_path(screenshot, keep_suffix=True) as tmp:
+                pygame.image.save(window.screen, str(tmp))
+    finally:
+        pygame.quit()
+        if record is not None:
+            print(f"recorded {session.record(record)}")
+    return session
+
+
+def main(argv: Sequence[str] | None = None) -> PlaySession:
+    parser = argparse.ArgumentParser(prog="python -m flows.play", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument("--seed", type=int, default=None, help="play the world of this seed (default 2,000,000)")
+    source.add_argument("--log", default=None, help="play the world recorded in this episode log (.mcap)")
+    parser.add_argument("--agent-speed", type=float, default=1.0, help="1.0 is the 2x agent, 0.5 the 1x")
+    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS),
+                        help="the world model of the imagination and of a learned planner")  # fmt: skip
+    parser.add_argument("--technique", default="oracle", choices=[n for n, t in TECHNIQUES.items() if t.search],
+                        help="the planner that plays when you press P or pass --watch")  # fmt: skip
+    parser.add_argument("--watch", action="store_true", help="start with the planner playing")
+    parser.add_argument("-k", "--rollout-steps", type=int, default=3, choices=HORIZONS, help="the planner's horizon")
+    parser.add_argument("--no-imagination", action="store_true", help="do not load a world model for the imagination")
+    parser.add_argument("--record", default=None, help="write what was played to this replay log (.mcap) at the end")
+    parser.add_argument("--scale", type=int, default=8, choices=range(1, 17), metavar="1..16", help="pixels per cell")
+    parser.add_argument("--fps", type=float, default=8.0, help="frames per second while the planner plays")
+    parser.add_argument("--live", action="store_true",
+                        help="also serve every step over the Foxglove WebSocket protocol (the live extra)")  # fmt: skip
+    parser.add_argument("--live-port", type=int, default=DEFAULT_PORT, help="the live view's port (0: any free one)")
+    parser.add_argument("--screenshot", default=None, help="save the window's last picture to this PNG at the end")
+    parser.add_argument("--script", default=None,
+                        help="key names separated by commas, one per frame, then quit (headless runs)")  # fmt: skip
+    args = parser.parse_args(argv)
+    if not args.fps > 0:
+        parser.error(f"--fps must be > 0, got {args.fps}")
+    try:
+        import pygame  # noqa: F401
+    except ImportError:
+        parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
+    try:
+        session = build_session(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
+                                not args.no_imagination)  # fmt: skip
+    except (LogError, CheckpointError, ValueError) as error:
+        parser.exit(2, f"python -m flows.play: error: {error}\n")
+    script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
+    if not args.live:
+        return play(session, args.scale, args.fps, args.watch, script, args.record, screenshot=args.screenshot)
+    try:
+        view = LiveView(port=args.live_port)
+    except (MissingExtra, RuntimeError, OSError) as error:
+        parser.exit(2, f"python -m flows.play: error: --live: {error}\n")
+    with view:
+        print(f"serving every step live on {view.url} (Foxglove: Open connection, Foxglove WebSocket)", flush=True)
+        return play(session, args.scale, args.fps, args.watch, script, args.record, view, args.screenshot)
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+    main(sys.argv[1:])
