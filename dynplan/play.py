@@ -1,6 +1,6 @@
 """Play in the world and in the world model's imagination: the state of one interactive episode, without a window.
 
-A `PlaySession` holds one recorded world and the agent in it. Each `step` moves the agent one action, as
+A `PlayState` holds one recorded world and the agent in it. Each `step` moves the agent one action, as
 `RoadEnv.step` does, in one of two places:
 
 * the **world**: the recorded frames, as an evaluation plays them;
@@ -38,7 +38,7 @@ PLACES = ("world", "imagination")
 
 
 @dataclass
-class PlaySession:
+class PlayState:
     """One interactive episode on `world` at `agent_speed`. `imagination`: the world model the imagination rolls
     forward (None: the imagination is unavailable); `planner` and `forward`: the searching agent and the forward
     model it plans with, for `planner_action` (None: only you play); `k`: the planner's horizon."""

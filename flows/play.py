@@ -42,7 +42,7 @@ from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.registry import WORLD_MODELS
-from dynplan.play import HORIZONS, PlaySession
+from dynplan.play import HORIZONS, PlayState
 from dynplan.render import colorize, error_image, upscale
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
@@ -58,9 +58,9 @@ def action_of(heading: int) -> int:
     return int(np.flatnonzero(angle == ACTION_ANGLES_DEG)[0])
 
 
-def build_session(seed: int | None = None, log: str | None = None, agent_speed: float = 1.0, model: str = "default",
-                  technique_name: str = "oracle", k: int = 3, imagination: bool = True) -> PlaySession:  # fmt: skip
-    """The session of the world of `seed` or of the recorded `log`: the imagination from the learned world model
+def build_state(seed: int | None = None, log: str | None = None, agent_speed: float = 1.0, model: str = "default",
+                  technique_name: str = "oracle", k: int = 3, imagination: bool = True) -> PlayState:  # fmt: skip
+    """The state of the world of `seed` or of the recorded `log`: the imagination from the learned world model
     `model` (its mid-point frames, no caution: the frames as the model predicts them), the planner of
     `technique_name` at horizon k."""
     if log is not None:
@@ -76,19 +76,19 @@ def build_session(seed: int | None = None, log: str | None = None, agent_speed: 
     case = Case(technique_name, agent_speed, k if chosen.search else None, int(world.seed),
                 model if chosen.world_model else None)  # fmt: skip
     planner, forward = case_agent(case, world)
-    return PlaySession(world, agent_speed, imagined, planner, forward, k)
+    return PlayState(world, agent_speed, imagined, planner, forward, k)
 
 
 class Window:
     """The pygame window: what you play in, the true world, and the divergence or the planner's prediction."""
 
-    def __init__(self, session: PlaySession, scale: int = 8):
+    def __init__(self, state: PlayState, scale: int = 8):
         import pygame
 
-        self.pygame, self.session, self.scale = pygame, session, scale
+        self.pygame, self.state, self.scale = pygame, state, scale
         pygame.display.init()
         pygame.font.init()
-        H, W = session.world.frames.shape[1:]
+        H, W = state.world.frames.shape[1:]
         self.panel = (W * scale, H * scale)
         self.screen = pygame.display.set_mode((3 * self.panel[0] + 4 * GAP, self.panel[1] + 150))
         pygame.display.set_caption("dynplan play")
@@ -101,7 +101,7 @@ class Window:
         self.screen.blit(self.font.render(title, True, (230, 230, 230)), (x, 6))
 
     def draw(self, planner_plays: bool, paused: bool) -> None:
-        s = self.session
+        s = self.state
         self.screen.fill((20, 20, 24))
         self._blit(colorize(s.frame, s.position), 0, f"playing in the {s.place}")
         self._blit(colorize(s.true_frame, s.position), 1, "the true world")
@@ -120,28 +120,28 @@ class Window:
         self.pygame.display.flip()
 
 
-def publish(live: LiveView, session: PlaySession) -> None:
-    """Show the session's latest step on the live view: the frame it was judged on, the agent, the step, and the
+def publish(live: LiveView, state: PlayState) -> None:
+    """Show the state's latest step on the live view: the frame it was judged on, the agent, the step, and the
     planner's search and prediction when it chose the step."""
-    track, t = session.track, session.t
+    track, t = state.track, state.t
     step = None
     if len(track.action):
         step = {"t": t, "action": int(track.action[-1]), "reward": float(track.reward[-1]),
                 "outcome": track.outcome[-1]}  # fmt: skip
-    decision = session.search[-1] if session.search and session.search[-1]["t"] == t - 1 else None
-    imagined = None if decision is None or session.last_prediction is None else session.last_prediction.frames
-    live.show(t, session.frame, session.world.goal[t], session.position, decision, imagined, step)
+    decision = state.search[-1] if state.search and state.search[-1]["t"] == t - 1 else None
+    imagined = None if decision is None or state.last_prediction is None else state.last_prediction.frames
+    live.show(t, state.frame, state.world.goal[t], state.position, decision, imagined, step)
 
 
-def play(session: PlaySession, scale: int = 8, fps: float = 8.0, planner_plays: bool = False,
+def play(state: PlayState, scale: int = 8, fps: float = 8.0, planner_plays: bool = False,
          script: Iterable[str] | None = None, record: str | None = None, live: LiveView | None = None,
-         screenshot: str | None = None) -> PlaySession:  # fmt: skip
+         screenshot: str | None = None) -> PlayState:  # fmt: skip
     """Run the window until ESC or the window closes. `script`: key names fed in as real key events, one per frame
     (then the window quits) — how the tests play it headless. `live`: also publish every step there;
     `screenshot`: save the window's last picture there (PNG)."""
     import pygame
 
-    window = Window(session, scale)
+    window = Window(state, scale)
     clock, paused, keys = pygame.time.Clock(), False, None if script is None else list(script)
     try:
         while True:
@@ -158,25 +158,25 @@ def play(session: PlaySession, scale: int = 8, fps: float = 8.0, planner_plays: 
                     if name == "escape":
                         quit_now = True
                     elif name == "r":
-                        session.reset()
-                    elif name == "i" and session.imagination is not None:
-                        session.toggle_imagination()
+                        state.reset()
+                    elif name == "i" and state.imagination is not None:
+                        state.toggle_imagination()
                     elif name == "k":
-                        session.cycle_horizon()
+                        state.cycle_horizon()
                     elif name == "p":
                         planner_plays = not planner_plays
                     elif name == "space":
                         paused = not paused
-                    elif name in MOVE_KEYS and session.running and not planner_plays:
-                        session.step(action_of(MOVE_KEYS[name]))
+                    elif name in MOVE_KEYS and state.running and not planner_plays:
+                        state.step(action_of(MOVE_KEYS[name]))
                         if live is not None:
-                            publish(live, session)
+                            publish(live, state)
             if quit_now:
                 break
-            if planner_plays and not paused and session.running:
-                session.step(session.planner_action())
+            if planner_plays and not paused and state.running:
+                state.step(state.planner_action())
                 if live is not None:
-                    publish(live, session)
+                    publish(live, state)
             window.draw(planner_plays, paused)
             clock.tick(fps)
         if screenshot is not None:
@@ -185,11 +185,11 @@ def play(session: PlaySession, scale: int = 8, fps: float = 8.0, planner_plays: 
     finally:
         pygame.quit()
         if record is not None:
-            print(f"recorded {session.record(record)}")
-    return session
+            print(f"recorded {state.record(record)}")
+    return state
 
 
-def main(argv: Sequence[str] | None = None) -> PlaySession:
+def main(argv: Sequence[str] | None = None) -> PlayState:
     parser = argparse.ArgumentParser(prog="python -m flows.play", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     source = parser.add_mutually_exclusive_group()
@@ -220,20 +220,20 @@ def main(argv: Sequence[str] | None = None) -> PlaySession:
     except ImportError:
         parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
     try:
-        session = build_session(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
+        state = build_state(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
                                 not args.no_imagination)  # fmt: skip
     except (LogError, CheckpointError, ValueError) as error:
         parser.exit(2, f"python -m flows.play: error: {error}\n")
     script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
     if not args.live:
-        return play(session, args.scale, args.fps, args.watch, script, args.record, screenshot=args.screenshot)
+        return play(state, args.scale, args.fps, args.watch, script, args.record, screenshot=args.screenshot)
     try:
         view = LiveView(port=args.live_port)
     except (MissingExtra, RuntimeError, OSError) as error:
         parser.exit(2, f"python -m flows.play: error: --live: {error}\n")
     with view:
         print(f"serving every step live on {view.url} (Foxglove: Open connection, Foxglove WebSocket)", flush=True)
-        return play(session, args.scale, args.fps, args.watch, script, args.record, view, args.screenshot)
+        return play(state, args.scale, args.fps, args.watch, script, args.record, view, args.screenshot)
 
 
 if __name__ == "__main__":

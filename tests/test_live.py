@@ -100,15 +100,15 @@ def test_play_serves_every_step_live(monkeypatch):
     pytest.importorskip("pygame")
     from dynplan.logs.format import TOPIC_AGENT_STEP
     from dynplan.logs.live import LiveView
-    from flows.play import build_session, play
+    from flows.play import build_state, play
 
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
-    session = build_session(seed=2_000_003, imagination=False)
+    state = build_state(seed=2_000_003, imagination=False)
     with LiveView(port=0) as view:
 
         def watched_play() -> None:
             view.wait_for_viewer(60)
-            play(session, scale=2, fps=1000, planner_plays=True, script=["f"] * 60, live=view)
+            play(state, scale=2, fps=1000, planner_plays=True, script=["f"] * 60, live=view)
 
         player = threading.Thread(target=watched_play)
         player.start()

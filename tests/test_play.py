@@ -10,11 +10,11 @@ from dynplan.logs.reader import read_episode_log
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
-from dynplan.play import PlaySession
+from dynplan.play import PlayState
 
 pygame = pytest.importorskip("pygame")
 
-from flows.play import MOVE_KEYS, action_of, build_session, main, play  # noqa: E402
+from flows.play import MOVE_KEYS, action_of, build_state, main, play  # noqa: E402
 
 SEED = 2_000_003
 KEY_OF_ACTION = {action_of(heading): key for key, heading in MOVE_KEYS.items() if len(key) == 1}
@@ -47,17 +47,17 @@ def test_keys_play_the_oracles_path_to_the_goal():
     planner = MCTSPlanner(MCTSConfig(rollout_steps=3), 1.0, RoadConfig().max_steps, seed=0)
     reference = run_episode(world, planner, OracleModel(world), 1.0, 3)
     assert reference.outcome == "goal"
-    session = build_session(seed=SEED, imagination=False)
-    played = play(session, scale=2, fps=1000, script=[KEY_OF_ACTION[int(a)] for a in reference.track.action])
+    state = build_state(seed=SEED, imagination=False)
+    played = play(state, scale=2, fps=1000, script=[KEY_OF_ACTION[int(a)] for a in reference.track.action])
     assert played.outcome == "goal" and len(played.track.action) == reference.steps
     np.testing.assert_allclose(played.track.position, reference.track.position)
 
 
 def test_the_imagination_rolls_the_model_forward_and_gives_the_world_back(tmp_path):
-    session = build_session(seed=SEED)
+    state = build_state(seed=SEED)
     out = tmp_path / "played.mcap"
-    play(session, scale=2, fps=1000, script=["i", "w", "w", "i", "d"], record=str(out))
-    assert session.place == "world" and session.t == 4 + 3 and session.running
+    play(state, scale=2, fps=1000, script=["i", "w", "w", "i", "d"], record=str(out))
+    assert state.place == "world" and state.t == 4 + 3 and state.running
     log = read_episode_log(out)
     assert list(log.agent.action) == [action_of(90), action_of(90), action_of(0)]
     assert sorted(log.imagined) == [4, 5]  # the imagination's frames at t + 1 of its two steps
@@ -75,16 +75,16 @@ def test_an_agent_is_judged_on_the_imagined_frames():
 
             return Prediction.from_frames(np.full((k, 48, 48), 100, np.uint8))  # an obstacle everywhere
 
-    session = PlaySession(generate_world(RoadConfig(), SEED), imagination=Wall())
-    session.toggle_imagination()
-    assert session.step(action_of(90)) == "death"
+    state = PlayState(generate_world(RoadConfig(), SEED), imagination=Wall())
+    state.toggle_imagination()
+    assert state.step(action_of(90)) == "death"
 
 
 def test_the_planner_plays_and_its_horizon_changes(tmp_path):
     out = tmp_path / "watched.mcap"
-    session = main(["--seed", str(SEED), "--watch", "--no-imagination", "--fps", "1000", "--scale", "2", "--record",
+    state = main(["--seed", str(SEED), "--watch", "--no-imagination", "--fps", "1000", "--scale", "2", "--record",
                     str(out), "--script", ",".join(["k"] + ["f"] * 80)])  # fmt: skip
-    assert session.k == 5 and session.outcome == "goal"
+    assert state.k == 5 and state.outcome == "goal"
     log = read_episode_log(out)
     assert log.agent.outcome[-1] == "goal" and len(log.imagined) == len(log.agent.action)
     assert {len(frames) for frames in log.imagined.values()} <= {5, 4, 3, 2, 1}
