@@ -18,30 +18,74 @@ from pathlib import Path
 
 import numpy as np
 
-from dynplan.env.config import RoadConfig
-from dynplan.env.road import generate_world
+from dynplan.env.config import FREE, GOAL_VALUE, RoadConfig
+from dynplan.env.road import World, generate_world, paint
 from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.models.metrics import frame_errors
 from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.forward import ForwardModel, goal_centres
 
 HORIZON = 10
+#: A missed obstacle pixel with a predicted obstacle this many pixels along its row counts as displaced.
+DISPLACED_PX = 2
 
 
-def errors_by_horizon(model: ForwardModel, episodes: int = 10, points: int = 10, horizon: int = HORIZON) -> dict:
-    """Mean false-negative and false-positive rates and goal error (pixels) at each step ahead 1 … horizon."""
+def foreseeable_frames(world: World, t: int, horizon: int) -> np.ndarray:
+    """Frames t+1 … t+horizon (horizon, H, W) as they would be if no obstacle entered the road after decision frame
+    t: what a model of frames 0 … t could at best predict (the floor of its misses)."""
+    if world.traffic is None or world.layout is None:
+        raise ValueError("the floor needs a generated world (its traffic table); this one was read back or built")
+    entered = world.traffic.entered_by(world.config.width + t)
+    frames = paint(world.config, world.layout, entered, world.goal[: t + 1 + horizon])
+    return frames[t + 1 :]
+
+
+def miss_causes(truth: np.ndarray, predicted: np.ndarray, foreseeable: np.ndarray,
+                reach: int = DISPLACED_PX) -> dict[str, float]:  # fmt: skip
+    """Each missed obstacle pixel of `predicted` against `truth` (frames (N, H, W)), by cause, as fractions of the
+    true obstacle pixels (they sum to the false-negative rate): *unforeseeable* (no obstacle there in the
+    `foreseeable` frames: it had not entered the road), *displaced* (a predicted obstacle within `reach` pixels
+    along the row) and *lost* (the rest). `floor` is the fraction the foreseeable frames themselves miss."""
+
+    def obstacles(frames: np.ndarray) -> np.ndarray:
+        return (frames != FREE) & (frames != GOAL_VALUE)
+
+    true, guess, seen = obstacles(truth), obstacles(predicted), obstacles(foreseeable)
+    near = guess.copy()
+    for shift in range(1, reach + 1):
+        near[..., shift:] |= guess[..., :-shift]
+        near[..., :-shift] |= guess[..., shift:]
+    missed = true & ~guess
+    total = max(int(true.sum()), 1)
+    unforeseeable = missed & ~seen
+    displaced = missed & seen & near
+    return {"floor": float((true & ~seen).sum() / total), "unforeseeable": float(unforeseeable.sum() / total),
+            "displaced": float(displaced.sum() / total),
+            "lost": float((missed & seen & ~near).sum() / total)}  # fmt: skip
+
+
+def errors_by_horizon(model: ForwardModel, episodes: int = 10, points: int = 10, horizon: int = HORIZON,
+                      first_seed: int = EVAL_SEED_START) -> dict:  # fmt: skip
+    """Mean false-negative and false-positive rates and goal error (pixels) at each step ahead 1 … horizon, the
+    floor of the false negatives (what no model of the past can foresee) and the false negatives by cause
+    (`miss_causes`), over `points` decision points of each of `episodes` episodes from seed `first_seed`."""
     fn, fp, goal = (np.zeros(horizon) for _ in range(3))
+    causes = {cause: np.zeros(horizon) for cause in ("floor", "unforeseeable", "displaced", "lost")}
     goal_counts = np.zeros(horizon)
     n = 0
     for e in range(episodes):
-        frames = generate_world(RoadConfig(), EVAL_SEED_START + e).frames
+        world = generate_world(RoadConfig(), first_seed + e)
+        frames = world.frames
         for t in np.linspace(4, len(frames) - horizon - 1, points).astype(int):
             predicted = model.predict(frames[: t + 1], horizon).frames
             truth = frames[t + 1 : t + 1 + horizon]
+            foreseeable = foreseeable_frames(world, int(t), horizon)
             for h in range(horizon):
                 errors = frame_errors(truth[h : h + 1], predicted[h : h + 1])
                 fn[h] += errors["fn_rate"]
                 fp[h] += errors["fp_rate"]
+                for cause, share in miss_causes(truth[h : h + 1], predicted[h : h + 1], foreseeable[h : h + 1]).items():
+                    causes[cause][h] += share
             distance = np.linalg.norm(goal_centres(truth) - goal_centres(predicted), axis=1)
             seen = ~np.isnan(distance)
             goal[seen] += distance[seen]
@@ -52,7 +96,10 @@ def errors_by_horizon(model: ForwardModel, episodes: int = 10, points: int = 10,
         "fn_rate": (fn / n).round(5).tolist(),
         "fp_rate": (fp / n).round(5).tolist(),
         "goal_error_px": (goal / np.maximum(goal_counts, 1)).round(3).tolist(),
+        "floor_fn_rate": (causes["floor"] / n).round(5).tolist(),
+        **{f"fn_{cause}": (causes[cause] / n).round(5).tolist() for cause in ("unforeseeable", "displaced", "lost")},
         "decision_points": n,
+        "first_seed": first_seed,
     }
 
 
@@ -70,6 +117,9 @@ def plot_errors(curves: dict[str, dict], path: str | os.PathLike) -> None:
             ax.plot(curve["steps_ahead"], curve[key], marker="o", label=name)
             ax.set_title(title)
             ax.set_xlabel("steps ahead")
+    floors = [curve for curve in curves.values() if "floor_fn_rate" in curve]
+    if floors:  # the same episodes for every curve: one floor
+        axes[0].plot(floors[0]["steps_ahead"], floors[0]["floor_fn_rate"], "k--", label="floor (not yet on the road)")
     axes[0].legend()
     fig.tight_layout()
     fig.savefig(path, dpi=90)
@@ -143,6 +193,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--margin", type=int, nargs="+", help="obstacle margins along the lane to compare, in pixels "
                         "(0: off; default: the configuration's own)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=10)
+    parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
+                        help="seed of the first episode (default: the evaluation's; validation: 2000000)")  # fmt: skip
     parser.add_argument("--plot", help="write the error-against-horizon figure here")
     parser.add_argument("--figure", help="write a Figure-1-style image here")
     parser.add_argument("--out", help="add the curves to this JSON file (curves of the same name are replaced)")
@@ -157,7 +209,7 @@ def main(argv: list[str] | None = None) -> None:
             variant = f"{futures} futures" if futures else "mid" if samples == 0 else f"{samples} samples"
             settings = (("occupancy", model.occupancy), ("margin", model.margin))
             name = f"{args.model}, {variant}" + "".join(f", {key} {value:g}" for key, value in settings if value)
-            curves[name] = errors_by_horizon(model, args.episodes)
+            curves[name] = errors_by_horizon(model, args.episodes, first_seed=args.first_seed)
             print(json.dumps({name: curves[name]}))
     if args.out:
         write_curves(args.out, curves, shlex.join(["python", "-m", "dynplan.analysis.prediction",

@@ -52,6 +52,11 @@ class Traffic:
         """Continuous x of the obstacles' left end `age` steps after entering (closed form: no float drift)."""
         return self.x0[index] + self.velocity[index] * age
 
+    def entered_by(self, step: int) -> Traffic:
+        """The obstacles that had entered the road by world step `step` (frame f is world step W + f)."""
+        keep = self.step <= step
+        return Traffic(*(getattr(self, name)[keep] for name in ("step", "lane", "x0", "velocity", "length", "value")))
+
 
 @dataclass(frozen=True)
 class Layout:
