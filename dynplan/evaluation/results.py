@@ -55,11 +55,33 @@ def prediction_section(results: Path, docs: Path) -> list[str]:
                      for k in HORIZONS]  # fmt: skip
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
         lines += ["", "Commands: " + "; ".join(sorted({f"`{c['command']}`" for c in curves.values()})), ""]
+        lines += _causes_table(curves)
         model = path.stem.removeprefix("prediction_")
         plot = results / f"prediction_error_{model}.png"
         if plot.exists():
             lines += [f"![prediction error, {model}]({os.path.relpath(plot, docs)})", ""]
     return lines
+
+
+def _causes_table(curves: dict[str, dict]) -> list[str]:
+    """The false negatives of each curve by cause against the floor (`analysis.prediction.miss_causes`)."""
+    measured = {name: c for name, c in curves.items() if "floor_fn_rate" in c}
+    if not measured:
+        return []
+    floor = next(iter(measured.values()))["floor_fn_rate"]
+    lines = ["False negatives by cause (% of true obstacle pixels): *unforeseeable* (the obstacle had not entered the "
+             "road at the decision), *displaced* (a predicted obstacle within 2 pixels along its lane), *lost* (the "
+             "rest); the false-negative rate is their sum, shown as a multiple of the floor — the share no model of "
+             "the past can foresee (the future repainted with only the obstacles on the road at the decision).", "",
+             "| prediction | " + " | ".join(f"k = {k}: unforeseeable / displaced / lost (× floor)" for k in HORIZONS)
+             + " |", "|" + " --- |" * (1 + len(HORIZONS)),
+             "| floor | " + " | ".join(_pct(floor[k - 1]) for k in HORIZONS) + " |"]  # fmt: skip
+    for name, c in measured.items():
+        cells = [f"{_pct(c['fn_unforeseeable'][k - 1])} / {_pct(c['fn_displaced'][k - 1])} / "
+                 f"{_pct(c['fn_lost'][k - 1])} ({c['fn_rate'][k - 1] / max(floor[k - 1], 1e-9):.1f}×)"
+                 for k in HORIZONS]  # fmt: skip
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
 
 
 def figure1_section(results: Path, docs: Path) -> list[str]:
