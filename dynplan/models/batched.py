@@ -8,10 +8,11 @@ against the occupancy table is one vectorised pass and one product over (B, K). 
 once per position, not per grid, so the cost per grid falls with B until the arithmetic dominates; and the same
 code runs on a GPU (`device`).
 
-The caching is `generate_fast`'s (as in Fast PixelCNN++): the conditioning once per grid, the vertical stacks
-once per row, the horizontal stacks and the head once per position. The arithmetic is the network's own; the
-order of float sums is the matrix library's, so a choice can differ from the kernel's where two codes' logits
-tie to rounding (how often is measured in docs/design.md §4).
+The caching is `generate_fast`'s (as in Fast PixelCNN++): the conditioning map once per grid (its projection
+into every layer's gates one product per row, which stays in the caches), the vertical stacks once per row, the
+horizontal stacks and the head once per position. The arithmetic is the network's own; the order of float sums is
+the matrix library's, so a choice can differ from the kernel's where two codes' logits tie to rounding (how often
+is measured in docs/design.md §4).
 """
 
 from __future__ import annotations
@@ -32,13 +33,13 @@ class BatchedWeights:
     """A prior's weights laid out for `generate_batched` on one device, built once per model by
     `batched_weights`: per layer, the masked vertical kernel (2C, C, rows, cols), the horizontal taps as one matrix
     ((half + 1) · C, 2C) over the channels-last window of columns j − half … j, the 1 × 1 convolutions as
-    (C_in, C_out) matrices; the head's two matrices and the code embedding (K, C)."""
+    (C_in, C_out) matrices; the head's two matrices, the code embedding (K, C) and every layer's conditioning
+    convolution as one matrix."""
 
     v_weight: tuple[torch.Tensor, ...]
     v_bias: tuple[torch.Tensor, ...]
     v_half: tuple[int, ...]
     v2h_weight: tuple[torch.Tensor, ...]
-    h_bias: tuple[torch.Tensor, ...]  # v2h bias + horizontal bias: both are added at every position
     h_weight: tuple[torch.Tensor, ...]
     out_weight: tuple[torch.Tensor, ...]
     out_bias: tuple[torch.Tensor, ...]
@@ -48,6 +49,9 @@ class BatchedWeights:
     w2: torch.Tensor
     b2: torch.Tensor
     embed: torch.Tensor
+    cond_weight: torch.Tensor  # (c, L · 4C): every layer's conditioning convolution, as `layer_conditions` lays it
+    cond_bias: torch.Tensor  # (L · 4C,): their biases; the horizontal halves also carry both biases of the
+    # horizontal pre-activation (the vertical-to-horizontal link's and the horizontal stack's), added at every position
     descending: torch.Tensor  # K, K − 1, …, 1: ranks codes for `_first_argmax`
     device: torch.device
 
@@ -72,12 +76,14 @@ def batched_weights(model: ConditionalPixelCNN, device: str | torch.device = "cp
         # (2C, C, 1, half + 1) → rows ordered (column, channel), as a channels-last window flattens
         h_weight.append(on(h[:, :, 0, :].permute(2, 1, 0).reshape(-1, h.shape[0])))
     layers, head = list(model.layers), list(model.head)
+    C = model.config.channels
+    cond_bias = torch.cat([layer.condition.bias for layer in layers]).reshape(len(layers), 2, 2 * C).clone()
+    cond_bias[:, 1] += torch.stack([layer.vertical_to_horizontal.bias + layer.horizontal.bias for layer in layers])
     return BatchedWeights(
         v_weight=tuple(v_weight),
         v_bias=tuple(on(layer.vertical.bias) for layer in layers),
         v_half=tuple(v_half),
         v2h_weight=tuple(on(layer.vertical_to_horizontal.weight[:, :, 0, 0].T) for layer in layers),
-        h_bias=tuple(on(layer.vertical_to_horizontal.bias + layer.horizontal.bias) for layer in layers),
         h_weight=tuple(h_weight),
         out_weight=tuple(on(layer.horizontal_out.weight[:, :, 0, 0].T) for layer in layers),
         out_bias=tuple(on(layer.horizontal_out.bias) for layer in layers),
@@ -87,6 +93,8 @@ def batched_weights(model: ConditionalPixelCNN, device: str | torch.device = "cp
         w2=on(head[3].weight[:, :, 0, 0].T),
         b2=on(head[3].bias),
         embed=on(model.embed.weight),
+        cond_weight=on(torch.cat([layer.condition.weight[:, :, 0, 0] for layer in layers]).T),
+        cond_bias=on(cond_bias.reshape(-1)),
         descending=torch.arange(model.config.codebook_size, 0, -1, dtype=torch.float32, device=device),
         device=device,
     )
@@ -131,13 +139,10 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
         return torch.cat(parts) if table is None else tuple(torch.cat(p) for p in zip(*parts, strict=True))
     device, L = weights.device, len(weights.v_weight)
     uniforms = uniforms.to(device)
-    home = next(model.parameters()).device  # the conditioning comes from the model where it lives, once per grid
-    per_layer = model.layer_conditions(model.condition(context.to(home))).to(device)  # (B, H, W, L, 2, 2C)
+    home = next(model.parameters()).device  # the conditioning map comes from the model where it lives
+    # Channels-last (H, B · W, c): each row's slice is one matrix for every layer's conditioning at once.
+    condition = model.condition(context.to(home)).to(device).permute(2, 0, 3, 1).reshape(H, B * W, -1)
     C = weights.embed.shape[1]
-    # Each layer's conditioning of its vertical gate and of its horizontal one (B, H, W, 2C) each; the horizontal
-    # one also carries both biases of the horizontal pre-activation.
-    cond_v = [per_layer[:, :, :, layer, 0] for layer in range(L)]
-    cond_h = [per_layer[:, :, :, layer, 1] + bias for layer, bias in enumerate(weights.h_bias)]
     top = max(weights.v_half)  # every vertical window reaches `top` rows up and columns aside at most
     # Inputs of each layer's vertical stack, channels-last with `top` zero rows above and zero columns either
     # side (layer 0: the embedded codes).
@@ -158,15 +163,18 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
     layers = list(zip(weights.h_weight, weights.out_weight, weights.out_bias, weights.residual, strict=True))
     row_terms = [torch.empty(0)] * L
     for i in range(H):
+        # Row i's conditioning of every layer's vertical and horizontal gates (B, W, L, 2, 2C), computed per row so
+        # that it stays in the caches; the horizontal one also carries both biases of the horizontal pre-activation.
+        conditions = torch.addmm(weights.cond_bias, condition[i], weights.cond_weight).reshape(B, W, L, 2, 2 * C)
         for layer in range(L):
             half = weights.v_half[layer]
             rows = v_in[layer, :, top + i - half : top + i + 1, top - half : top + W + half]  # (B, half+1, W+2half, C)
             window = rows.unfold(2, 2 * half + 1, 1).permute(0, 2, 1, 4, 3).reshape(B * W, -1)
             v_pre = torch.addmm(weights.v_bias[layer], window, weights.v_weight[layer])  # (B·W, 2C)
             if layer + 1 < L:
-                gate = v_pre.reshape(B, W, -1) + cond_v[layer][:, i]
+                gate = v_pre.reshape(B, W, -1) + conditions[:, :, layer, 0]
                 v_in[layer + 1, :, top + i, top : top + W] = torch.tanh(gate[..., :C]) * torch.sigmoid(gate[..., C:])
-            row_terms[layer] = torch.addmm(cond_h[layer][:, i].reshape(B * W, -1), v_pre,
+            row_terms[layer] = torch.addmm(conditions[:, :, layer, 1].reshape(B * W, -1), v_pre,
                                            weights.v2h_weight[layer]).reshape(B, W, -1)  # fmt: skip
         h[0].zero_()
         for j in range(W):

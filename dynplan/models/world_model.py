@@ -52,7 +52,7 @@ def merge_samples(mid: np.ndarray, samples: np.ndarray) -> np.ndarray:
     obstacles = np.where((views != FREE) & (views != GOAL_VALUE), views, 0).max(axis=0)
     merged = np.zeros_like(mid)
     k, H, W = mid.shape
-    centres = np.stack([goal_centres(view) for view in views])  # (n + 1, k, 2), NaN where no goal
+    centres = goal_centres(views.reshape(-1, H, W)).reshape(len(views), k, 2)  # NaN where no goal
     for t in range(k):
         found = centres[:, t][~np.isnan(centres[:, t, 0])]
         if len(found):
