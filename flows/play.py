@@ -33,7 +33,7 @@ import numpy as np
 from dynplan.env.agent import ACTION_ANGLES_DEG
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.evaluation.cases import Case
+from dynplan.evaluation.cases import VALIDATION_SEED_START, Case
 from dynplan.evaluation.protocol import case_agent
 from dynplan.evaluation.techniques import TECHNIQUES, technique
 from dynplan.extras import MissingExtra
@@ -59,14 +59,14 @@ def action_of(heading: int) -> int:
 
 
 def build_state(seed: int | None = None, log: str | None = None, agent_speed: float = 1.0, model: str = "default",
-                  technique_name: str = "oracle", k: int = 3, imagination: bool = True) -> PlayState:  # fmt: skip
+                technique_name: str = "oracle", k: int = 3, imagination: bool = True) -> PlayState:  # fmt: skip
     """The state of the world of `seed` or of the recorded `log`: the imagination from the learned world model
     `model` (its mid-point frames, no caution: the frames as the model predicts them), the planner of
     `technique_name` at horizon k."""
     if log is not None:
         world = read_episode_log(log).world()
     else:
-        world = generate_world(RoadConfig(agent_speed=agent_speed), 2_000_000 if seed is None else seed)
+        world = generate_world(RoadConfig(agent_speed=agent_speed), VALIDATION_SEED_START if seed is None else seed)
     imagined = None
     if imagination:
         from dynplan.models.world_model import load_world_model
@@ -221,7 +221,7 @@ def main(argv: Sequence[str] | None = None) -> PlayState:
         parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
     try:
         state = build_state(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
-                                not args.no_imagination)  # fmt: skip
+                            not args.no_imagination)  # fmt: skip
     except (LogError, CheckpointError, ValueError) as error:
         parser.exit(2, f"python -m flows.play: error: {error}\n")
     script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
