@@ -124,10 +124,7 @@ def publish(live: LiveView, state: PlayState) -> None:
     """Show the state's latest step on the live view: the frame it was judged on, the agent, the step, and the
     planner's search and prediction when it chose the step."""
     track, t = state.track, state.t
-    step = None
-    if len(track.action):
-        step = {"t": t, "action": int(track.action[-1]), "reward": float(track.reward[-1]),
-                "outcome": track.outcome[-1]}  # fmt: skip
+    step = track.step_row(-1) if len(track.action) else None
     decision = state.search[-1] if state.search and state.search[-1]["t"] == t - 1 else None
     imagined = None if decision is None or state.last_prediction is None else state.last_prediction.frames
     live.show(t, state.frame, state.world.goal[t], state.position, decision, imagined, step)

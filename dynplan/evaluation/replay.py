@@ -17,6 +17,7 @@ import numpy as np
 from dynplan.env.agent import FIRST_DECISION_FRAME
 from dynplan.env.config import RoadConfig
 from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, learned_model, technique
+from dynplan.logs.format import step_row
 from dynplan.logs.live import LiveView
 from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
 from dynplan.logs.writer import write_episode_log
@@ -117,8 +118,7 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
             panels.append(_gif_panel(world.frames, t, position, prediction, rollout_steps))
         if live is not None:
             time.sleep(max(0.0, shown[0] + pace_s - time.perf_counter()))
-            step = None if len(search) < 2 else {"t": t, "action": search[-2]["action"], "reward": 0.0,
-                                                 "outcome": "running"}  # fmt: skip
+            step = None if len(search) < 2 else step_row(t, search[-2]["action"])
             live.show(t, world.frames[t], world.goal[t], position, search[-1],
                       None if prediction is None else prediction.frames, step)  # fmt: skip
             shown[0] = time.perf_counter()
@@ -130,9 +130,7 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
     result = run_episode(world, agent, forward, agent_speed, rollout_steps, on_decision=record)
     if live is not None:  # where the episode ended
         track, last = result.track, int(result.track.t[-1])
-        step = {"t": last, "action": int(track.action[-1]), "reward": float(track.reward[-1]),
-                "outcome": track.outcome[-1]}  # fmt: skip
-        live.show(last, world.frames[last], world.goal[last], track.position[-1], step=step)
+        live.show(last, world.frames[last], world.goal[last], track.position[-1], step=track.step_row(-1))
     if out is not None:
         write_episode_log(out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None,
                           search=search)  # fmt: skip

@@ -86,6 +86,11 @@ def log_time(t: int) -> int:
     return EPOCH_NS + int(t) * FRAME_PERIOD_NS
 
 
+def step_row(t: int, action: int, reward: float = 0.0, outcome: str = "running") -> dict:
+    """An /agent/step row (`STEP_JSON_SCHEMA`): the step that led to frame `t`."""
+    return {"t": int(t), "action": int(action), "reward": float(reward), "outcome": outcome}
+
+
 @dataclass(frozen=True)
 class AgentTrack:
     """An agent acting in an episode: its pose at each frame it occupied, and each step it took.
@@ -102,6 +107,11 @@ class AgentTrack:
     action: np.ndarray
     reward: np.ndarray
     outcome: tuple[str, ...]
+
+    def step_row(self, i: int) -> dict:
+        """Step i's /agent/step row (it led to frame t[i + 1]); negative i counts from the last."""
+        i = i % len(self.action)
+        return step_row(self.t[i + 1], self.action[i], self.reward[i], self.outcome[i])
 
     def __post_init__(self) -> None:
         n = len(self.t)

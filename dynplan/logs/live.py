@@ -31,7 +31,7 @@ from dynplan.logs.format import (
     TOPIC_SEARCH,
     log_time,
 )
-from dynplan.logs.writer import annotations, image_message, pose_message
+from dynplan.logs.writer import annotations, image_message, imagined_strip, pose_message
 from dynplan.render import draw_agent
 
 #: The Foxglove app's default WebSocket port.
@@ -98,8 +98,7 @@ class LiveView:
         if decision is not None:
             self._search.log(json.dumps(decision).encode(), log_time=time)
         if imagined is not None:
-            strip = np.concatenate(list(imagined), axis=1)
-            self._imagined.log(image_message(t, strip).SerializeToString(), log_time=time)
+            self._imagined.log(image_message(t, imagined_strip(imagined)).SerializeToString(), log_time=time)
 
     def close(self) -> None:
         self.server.stop()

@@ -70,6 +70,11 @@ def image_message(t: int, frame: np.ndarray) -> RawImage:
                     data=np.ascontiguousarray(frame[::-1]).tobytes())  # fmt: skip
 
 
+def imagined_strip(frames: np.ndarray) -> np.ndarray:
+    """Predicted frames (k, H, W) as one /planner/imagined image (H, k · W), left to right."""
+    return np.concatenate(list(frames), axis=1)
+
+
 def episode_metadata(world: World, n_frames: int, kind: str) -> dict[str, str]:
     """The `dynplan` metadata record of a log (all values strings, as MCAP requires)."""
     from dynplan.version import __version__
@@ -138,7 +143,7 @@ def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack |
         if imagined:
             imagined_channel = writer.register_channel(TOPIC_IMAGINED, "protobuf", frame_schema)
             for i, (t, frames) in enumerate(sorted(imagined.items())):
-                strip = np.concatenate(list(frames), axis=1)  # (H, k·W): predicted frames left to right
+                strip = imagined_strip(frames)
                 time = log_time(t)
                 writer.add_message(imagined_channel, time, image_message(t, strip).SerializeToString(), time, i)
         writer.finish()
@@ -153,9 +158,7 @@ def _write_agent(writer: McapWriter, agent: AgentTrack, pose_schema: int) -> Non
         time = log_time(int(t))
         writer.add_message(pose_channel, time, pose_message(int(t), agent.position[i]).SerializeToString(), time, i)
         if i > 0:
-            step = {"t": int(t), "action": int(agent.action[i - 1]), "reward": float(agent.reward[i - 1]),
-                    "outcome": agent.outcome[i - 1]}  # fmt: skip
-            writer.add_message(step_channel, time, json.dumps(step).encode(), time, i)
+            writer.add_message(step_channel, time, json.dumps(agent.step_row(i - 1)).encode(), time, i)
 
 
 AGENT_COLOUR = Color(r=1.0, g=0.2, b=0.2, a=1.0)
