@@ -2,13 +2,13 @@
 
 Records the evaluation episodes if they are missing (seeds 1,000,000 …), plays every (technique, agent speed,
 rollout steps, episode) case into a named run of the results store (`RESULTS_DIR/runs/RUN/`: a manifest and one
-JSON line per episode), the episodes of a technique, model, speed and k in lockstep batches of up to `--batch`, one
-Prefect task each — skipping cases the run already holds and appending each row as its episode finishes, so an
-interrupted evaluation resumes per episode — then aggregates the evaluation runs into table1.json / table1.md. The run
-`evaluation` is Table 1's; `--first-seed 2000000` with another `--log-dir` and `--run` plays the validation
-episodes instead, where a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`); any
-other run on the evaluation episodes is a candidate's. `--table1` plays every case of the complete Table 1 (both
-world-model configurations, every technique and speed the table lists) in one command.
+JSON line per episode), in lockstep batches of every case of up to `--batch` recorded worlds that shares a world
+model, one Prefect task each — skipping cases the run already holds and appending each row as its episode finishes,
+so an interrupted evaluation resumes per episode — then aggregates the evaluation runs into table1.json /
+table1.md. The run `evaluation` is Table 1's; `--first-seed 2000000` with another `--log-dir` and `--run` plays the
+validation episodes instead, where a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`);
+any other run on the evaluation episodes is a candidate's. `--table1` plays every case of the complete Table 1
+(both world-model configurations, every technique and speed the table lists) in one command.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ from flows.runners import dask_address, task_runner
 
 DEFAULT_COMMAND = "python -m flows.evaluate"
 RESULTS_DIR = "datasets/results"
-#: Episodes per lockstep batch (one task): two batches of a 100-episode case keep two workers busy.
+#: Recorded worlds per lockstep batch (one task): two batches of 100 worlds keep two workers busy.
 BATCH = 50
 
 
@@ -79,12 +79,18 @@ def evaluate_cases_task(cases: list[dict], log_dir: str, results_dir: str, run: 
 
 
 def batches(todo: list[Case], size: int) -> list[list[Case]]:
-    """The cases in batches of at most `size` that play in lockstep: one technique, world model, agent speed and k
-    each (so a batch shares one world model and one horizon)."""
-    groups: dict[tuple, list[Case]] = {}
+    """The cases in lockstep batches: per world-model configuration (the techniques without one together), the
+    cases of up to `size` recorded worlds each — every technique, agent speed and k of those worlds in one batch, so
+    that each frame's prediction is made once for all the cases that see it."""
+    groups: dict[str | None, dict[int, list[Case]]] = {}
     for case in todo:
-        groups.setdefault((case.technique, case.model, case.agent_speed, case.rollout_steps), []).append(case)
-    return [group[i : i + size] for group in groups.values() for i in range(0, len(group), size)]
+        groups.setdefault(case.model, {}).setdefault(case.seed, []).append(case)
+    out = []
+    for by_seed in groups.values():
+        seeds = sorted(by_seed)
+        for start in range(0, len(seeds), size):
+            out.append([case for seed in seeds[start : start + size] for case in by_seed[seed]])
+    return out
 
 
 @flow(name="evaluate-planner", log_prints=True)
@@ -97,10 +103,10 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
                      caution: dict[str, float] | None = None, run: str = EVALUATION_RUN,
                      batch: int = BATCH, device: str = "cpu", table1: bool = False,
                      artifacts: str | None = None) -> list[dict]:  # fmt: skip
-    """Play the cases `run` lacks, in lockstep batches of up to `batch` episodes (one Prefect task each), and write
-    the aggregated table. Learned techniques use the committed weights, or
-    those under `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution`
-    (field → value) overrides it, generating their batches on `device`. Episodes are seeds `first_seed` … (the
+    """Play the cases `run` lacks, in lockstep batches of up to `batch` recorded worlds (one Prefect task each; see
+    `batches`), and write the aggregated table. Learned techniques use the committed weights, or those under
+    `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution` (field →
+    value) overrides it, generating their batches on `device`. Episodes are seeds `first_seed` … (the
     evaluation's by default). `table1`: every case of the complete Table 1 instead of `techniques` × `models` ×
     `agent_speeds`. Publishes the episodes' progress and the table as Prefect artifacts, the table keyed
     `table1-<artifacts>` (default: the run's name)."""
@@ -172,7 +178,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     for name, kind in (("occupancy", float), ("margin", int)):  # the caution's fields, ranges and words
         parser.add_argument(f"--{name}", type=kind, help=field_help(Caution, name, "each configuration's own"))
     parser.add_argument("--workers", type=int, help="batches played at once locally (default: one per core)")
-    parser.add_argument("--batch", type=int, default=BATCH, help=f"episodes per lockstep batch, in [1, 10000] "
+    parser.add_argument("--batch", type=int, default=BATCH, help=f"recorded worlds per lockstep batch, in [1, 10000] "
                         f"(default {BATCH})")  # fmt: skip
     parser.add_argument("--table1", action="store_true", help="play the complete Table 1: "
                         + "; ".join(f"{speed * 2:g}x: {' '.join(names)}" for speed, names in TABLE1.items())

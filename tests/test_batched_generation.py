@@ -91,9 +91,9 @@ def test_the_world_model_generates_large_batches_batched_and_names_a_bad_device(
     calls = []
     original = world_model.generate_batched
     monkeypatch.setattr(world_model, "generate_batched", lambda *a, **k: calls.append(1) or original(*a, **k))
-    kernel = model._chain(context, 2)
+    kernel, _ = model._chain(context, [2] * 3)
     assert not calls
     monkeypatch.setattr(world_model, "BATCHED_FROM", 2)
-    assert torch.equal(model._chain(context, 2), kernel) and len(calls) == 2
+    assert torch.equal(model._chain(context, [2] * 3)[0], kernel) and len(calls) == 2
     with pytest.raises(ValueError, match="device must be"):
         world_model.LearnedWorldModel(tokenizer, prior, device="gpu0")

@@ -47,6 +47,23 @@ def test_table1_cases_are_the_committed_tables_rows():
     assert len(table1_cases(episodes=2)) == 2 * len(groups)
 
 
+def test_a_lockstep_batch_is_every_case_of_its_worlds_that_shares_a_world_model():
+    from dynplan.evaluation.cases import table1_cases
+    from flows.evaluate import batches
+
+    todo = table1_cases(episodes=5)
+    work = batches(todo, 2)
+    assert sorted(map(repr, (c for b in work for c in b))) == sorted(map(repr, todo))  # each case once
+    for batch in work:
+        assert len({c.model for c in batch}) == 1 and len({c.seed for c in batch}) <= 2
+    # 3 batches (2 + 2 + 1 worlds) per world model and for the techniques without one; a batch holds every
+    # technique, speed and k of its worlds
+    assert len(work) == 3 * 3 and {len({c.seed for c in b}) for b in work} == {1, 2}
+    assert {(c.technique, c.agent_speed, c.rollout_steps) for c in work[3]} == {
+        (c.technique, c.agent_speed, c.rollout_steps) for c in todo if c.model == work[3][0].model
+    }
+
+
 def test_run_case_writes_a_result_and_resumes(tmp_path, eval_logs):
     case, run = Case("oracle", 1.0, 3, EVAL_SEED_START), Run(tmp_path)
     record = run_case(case, eval_logs, run)

@@ -81,5 +81,67 @@ def test_a_batch_of_predictions_equals_each_alone():
         for a, b in zip(expected, got, strict=True):
             np.testing.assert_array_equal(a.frames, b.frames)
             np.testing.assert_array_equal(a.goal, b.goal)
-    with pytest.raises(ValueError, match="differ in weights or settings"):
-        LearnedWorldModel.predict_batch([alone[0], load_world_model(model="paper")], [frames[0][:5]] * 2, [1, 1])
+    with pytest.raises(ValueError, match="differ in weights"):
+        LearnedWorldModel.predict_batch([load_world_model(model="default"), load_world_model(model="paper")],
+                                        [frames[0][:5]] * 2, [1, 1])  # fmt: skip
+
+
+def test_models_of_any_settings_on_one_prior_predict_together_each_observation_once(monkeypatch):
+    """Mid, samples, futures and caution on the same weights share one batch: each distinct observation's greedy
+    chain is generated once, as long as its longest horizon, and each model still gets what it gets alone."""
+    from dynplan.models import world_model
+
+    frames = [w.frames for w in worlds()]
+    off = {"occupancy": 0.0, "margin": 0}
+    settings = [
+        dict(caution=off),
+        dict(samples=5),
+        dict(samples=10, caution=off),
+        dict(futures=5),
+        dict(samples=5, futures=2, caution=off),
+        dict(samples=5, caution={"occupancy": 0.3, "margin": 0}),
+    ]
+    cases = [(s, w, 8 + 3 * w, k) for s in settings for w, k in ((0, 1), (0, 3), (1, 2))]  # 2 observations
+    build = [lambda s=s, n=n: load_world_model(model="default", seed=n, **s) for n, (s, *_) in enumerate(cases)]
+    alone = [make().predict(frames[w][: t + 1], k) for make, (_, w, t, k) in zip(build, cases, strict=True)]
+    rows: list[int] = []
+    for name in ("generate_fast", "generate_batched"):
+        original = getattr(world_model, name)
+        monkeypatch.setattr(world_model, name, lambda m, c, *a, original=original, **kw: rows.append(len(c))
+                            or original(m, c, *a, **kw))  # fmt: skip
+    together = LearnedWorldModel.predict_batch([make() for make in build], [frames[w][: t + 1] for _, w, t, _ in cases],
+                                               [k for *_, k in cases])  # fmt: skip
+    for a, b in zip(alone, together, strict=True):
+        np.testing.assert_array_equal(a.frames, b.frames)
+    # One greedy chain per observation, 3 and 2 grids long, then each one's 5 and 2 futures as long
+    assert rows == [2, 2, 1, 2 * 5, 2 * 5, 5, 2 * 2, 2 * 2, 2], rows
+
+
+def test_sampled_futures_are_a_function_of_the_observation():
+    """Futures draw from the observation's own stream: models of any seed agree, and a shorter horizon's frames are
+    a longer one's first frames, so the cases that see the same frame can share them."""
+    observed = worlds()[0].frames[:12]
+    one, other = (load_world_model(model="paper", futures=5, seed=seed) for seed in (1, 2))
+    long = one.predict(observed, 3).frames
+    np.testing.assert_array_equal(other.predict(observed, 3).frames, long)
+    np.testing.assert_array_equal(one.predict(observed, 1).frames, long[:1])
+    assert not np.array_equal(one.predict(worlds()[0].frames[:13], 1).frames, long[:1])
+
+
+@pytest.mark.slow
+def test_cases_of_every_technique_speed_and_k_in_one_batch_equal_each_alone():
+    """An evaluation's batch holds every case of its worlds: episodes at both speeds and several k, on the same
+    recorded worlds, share each frame's prediction and still play as they would alone."""
+    specs = [("mid", 1.0, 1), ("samples5", 1.0, 3), ("futures5", 1.0, 1), ("samples5", 0.5, 3), ("oracle", 1.0, 3)]
+    cases = [Case(name, speed, k, seed, None if name == "oracle" else "paper")
+             for name, speed, k in specs for seed in SEEDS[:2]]  # fmt: skip
+    recorded = {w.seed: w for w in worlds(0.5)}  # long enough for either speed, as the evaluation records them
+    alone = [run_episode(recorded[c.seed], *case_agent(c, recorded[c.seed]), c.agent_speed, c.rollout_steps)
+             for c in cases]  # fmt: skip
+    planners, forwards = zip(*(case_agent(c, recorded[c.seed]) for c in cases), strict=True)
+    together = run_episodes([recorded[c.seed] for c in cases], planners, forwards, [c.agent_speed for c in cases],
+                            [c.rollout_steps for c in cases])  # fmt: skip
+    for a, b in zip(alone, together, strict=True):
+        same(a, b)
+    with pytest.raises(ValueError, match="2 agent speeds"):
+        run_episodes(worlds()[:1], planners[:1], forwards[:1], [1.0, 0.5], 1)

@@ -69,48 +69,53 @@ def run_case(case: Case, log_dir: str | os.PathLike, run: Run, playouts: int = 1
 def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playouts: int = 100,
               model_dir: str | None = None, caution: Mapping[str, float] | None = None,
               device: str = "cpu") -> list[dict]:  # fmt: skip
-    """Play `cases` against their recorded episodes in lockstep (`run_episodes`; one batch per agent speed and k)
-    and append each one's row to `run` the moment its episode finishes — or return the run's row of a case, if one
-    was played with the same playouts, against the same log and (learned techniques) the same weights and
-    caution. `model_dir`: where the learned techniques' checkpoints are (see `world_model_paths`); `caution`:
-    what overrides the learned model's configuration's own (field → value, e.g. {"occupancy": 0.05}); `device`:
-    where learned models generate (not part of a row's provenance: the same arithmetic, up to float summation
-    order). A row's `wall_s` is its episode's share of the batch: reading its log, building its agent and its
-    decisions."""
+    """Play `cases` against their recorded episodes in one lockstep batch (`run_episodes`: whatever their technique,
+    agent speed and k, the learned models on the same weights predict together, and the cases on the same recorded
+    world share each prediction of a frame they all see) and append each one's row to `run` the moment its episode
+    finishes — or return the run's row of a case, if one was played with the same playouts, against the same log
+    and (learned techniques) the same weights and caution. `model_dir`: where the learned techniques' checkpoints
+    are (see `world_model_paths`); `caution`: what overrides the learned model's configuration's own (field →
+    value, e.g. {"occupancy": 0.05}); `device`: where learned models generate (not part of a row's provenance: the
+    same arithmetic, up to float summation order). A row's `wall_s` is its episode's share of the batch: reading its
+    log, building its agent and its decisions."""
     rows: list[dict | None] = [None] * len(cases)
-    todo: dict[tuple, list[int]] = {}
     provenances = [case_provenance(case, log_dir, playouts, model_dir, caution) for case in cases]
     for i, case in enumerate(cases):
         rows[i] = run.find(asdict(case), provenances[i])
-        if rows[i] is None:
-            todo.setdefault((case.agent_speed, case.rollout_steps or 1), []).append(i)
-    for (agent_speed, k), members in todo.items():
-        worlds, agents, setup_s = [], [], []
-        for i in members:
-            start = time.perf_counter()
-            source = log_path(log_dir, cases[i].seed)
+    members = [i for i, row in enumerate(rows) if row is None]
+    if not members:
+        return rows  # type: ignore[return-value]
+    recorded: dict[int, World] = {}  # each log read once, its world shared by every case that plays it
+    worlds, agents, setup_s = [], [], []
+    for i in members:
+        start = time.perf_counter()
+        seed = cases[i].seed
+        if seed not in recorded:
+            source = log_path(log_dir, seed)
             log = read_episode_log(source)
-            if log.seed != cases[i].seed:
-                raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {cases[i].seed}")
-            worlds.append(log.world())
-            agents.append(case_agent(cases[i], worlds[-1], playouts, model_dir, caution, device))
-            setup_s.append(time.perf_counter() - start)
+            if log.seed != seed:
+                raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {seed}")
+            recorded[seed] = log.world()
+        worlds.append(recorded[seed])
+        agents.append(case_agent(cases[i], worlds[-1], playouts, model_dir, caution, device))
+        setup_s.append(time.perf_counter() - start)
 
-        def finish(j: int, result: EpisodeResult, members: list[int] = members, setup_s: list[float] = setup_s) -> None:
-            i = members[j]
-            rows[i] = {
-                **asdict(cases[i]),
-                "outcome": result.outcome,
-                "steps": result.steps,
-                **provenances[i],
-                "decision_ms": [round(ms, 4) for ms in result.decision_ms],
-                "wall_s": round(setup_s[j] + sum(result.decision_ms) / 1e3, 4),
-                "code_version": code_version(),
-            }
-            run.append(rows[i])
+    def finish(j: int, result: EpisodeResult) -> None:
+        i = members[j]
+        rows[i] = {
+            **asdict(cases[i]),
+            "outcome": result.outcome,
+            "steps": result.steps,
+            **provenances[i],
+            "decision_ms": [round(ms, 4) for ms in result.decision_ms],
+            "wall_s": round(setup_s[j] + sum(result.decision_ms) / 1e3, 4),
+            "code_version": code_version(),
+        }
+        run.append(rows[i])
 
-        planners, models = zip(*agents, strict=True)
-        run_episodes(worlds, planners, models, agent_speed, k, on_finish=finish)
+    planners, models = zip(*agents, strict=True)
+    run_episodes(worlds, planners, models, [cases[i].agent_speed for i in members],
+                 [cases[i].rollout_steps or 1 for i in members], on_finish=finish)  # fmt: skip
     return rows  # type: ignore[return-value]
 
 

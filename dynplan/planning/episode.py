@@ -56,69 +56,81 @@ def run_episode(
 BatchDecisionHook = Callable[[int, int, np.ndarray, Prediction | None, Decision], None]
 
 
-def _predict(models: Sequence[ForwardModel], observed: Sequence[np.ndarray], ks: Sequence[int]) -> list[Prediction]:
-    """Each model's prediction of its own episode; models that predict in batches (a `batch_key` and a static
-    `predict_batch`, e.g. the learned world model) are asked once per group of equal keys."""
+def _predict(models: Sequence[ForwardModel], observed: Sequence[np.ndarray],
+             ks: Sequence[int]) -> tuple[list[Prediction], list[float]]:  # fmt: skip
+    """Each model's prediction of its own episode, and the ms each took. Models that predict in batches (a
+    `batch_key` and a static `predict_batch`, e.g. the learned world model) are asked once per group of equal keys,
+    and a group's time is shared in proportion to what each asked for (`cost(k)`, else k)."""
     out: list[Prediction | None] = [None] * len(models)
+    ms = [0.0] * len(models)
     groups: dict[object, list[int]] = {}
     for i, model in enumerate(models):
         key = getattr(model, "batch_key", None)
         if key is None:
+            start = time.perf_counter()
             out[i] = model.predict(observed[i], ks[i])
+            ms[i] = (time.perf_counter() - start) * 1e3
         else:
             groups.setdefault((type(model), key), []).append(i)
     for (kind, _), members in groups.items():
+        start = time.perf_counter()
         predictions = kind.predict_batch([models[i] for i in members], [observed[i] for i in members],
                                          [ks[i] for i in members])  # fmt: skip
-        for i, prediction in zip(members, predictions, strict=True):
-            out[i] = prediction
-    return out  # type: ignore[return-value]
+        spent = (time.perf_counter() - start) * 1e3
+        costs = [getattr(models[i], "cost", lambda k: k)(ks[i]) for i in members]
+        for i, prediction, cost in zip(members, predictions, costs, strict=True):
+            out[i], ms[i] = prediction, spent * cost / sum(costs)
+    return out, ms  # type: ignore[return-value]
 
 
 def run_episodes(
     worlds: Sequence[World],
     planners: Sequence[MCTSPlanner | RandomPlanner],
     models: Sequence[ForwardModel | None],
-    agent_speed: float,
-    rollout_steps: int = 1,
+    agent_speed: float | Sequence[float],
+    rollout_steps: int | Sequence[int] = 1,
     on_decision: BatchDecisionHook | None = None,
     on_finish: Callable[[int, EpisodeResult], None] | None = None,
 ) -> list[EpisodeResult]:
-    """Play many episodes in lockstep, episode i with `planners[i]` against `models[i]`: at each step every live
-    episode's prediction is asked for at once (one batched world-model call per group of models that share
-    weights and settings), each planner then chooses, all step, and finished episodes leave the batch
-    (`on_finish(i, result)` is called as each does). The world does not depend on the agent, and each model and
-    planner keeps its own random stream, so an episode's result does not depend on which others share its batch.
-    An episode's decision time is its share of the batched prediction plus its own search."""
-    if not len(worlds) == len(planners) == len(models):
-        raise ValueError(f"run_episodes: {len(worlds)} worlds, {len(planners)} planners, {len(models)} models")
+    """Play many episodes in lockstep, episode i with `planners[i]` against `models[i]` at its agent speed and
+    horizon (one value for all, or one per episode): at each step every live episode's prediction is asked for at
+    once (one batched world-model call per group of models on the same weights — episodes on the same world see
+    the same frames, and each distinct observation is predicted once), each planner then chooses, all step, and
+    finished episodes leave the batch (`on_finish(i, result)` is called as each does). The world does not depend
+    on the agent, and each model and planner keeps its own random stream, so an episode's result does not depend
+    on which others share its batch. An episode's decision time is its share of the batched prediction (by what it
+    asked for) plus its own search."""
+    n = len(worlds)
+    if not n == len(planners) == len(models):
+        raise ValueError(f"run_episodes: {n} worlds, {len(planners)} planners, {len(models)} models")
+    speeds = [agent_speed] * n if np.isscalar(agent_speed) else list(agent_speed)
+    horizons_of = [rollout_steps] * n if np.isscalar(rollout_steps) else list(rollout_steps)
+    if not len(speeds) == len(horizons_of) == n:
+        raise ValueError(f"run_episodes: {n} worlds, {len(speeds)} agent speeds, {len(horizons_of)} rollout steps")
     envs, configs = [], []
-    for world, planner in zip(worlds, planners, strict=True):
-        config = RoadConfig.from_dict(world.config.model_dump(), agent_speed=agent_speed)
+    for world, planner, speed in zip(worlds, planners, speeds, strict=True):
+        config = RoadConfig.from_dict(world.config.model_dump(), agent_speed=speed)
         env = RoadEnv(config=config)
         env.reset(options={"world": world})
         planner.reset()
         envs.append(env)
         configs.append(config)
-    n = len(worlds)
     times: list[list[float]] = [[] for _ in range(n)]
     tracks = [([env.t], [env.position.copy()], [], [], []) for env in envs]
     results: list[EpisodeResult | None] = [None] * n
     live = list(range(n))
     while live:
-        start = time.perf_counter()
-        horizons = {i: min(rollout_steps, configs[i].max_steps - 1 - envs[i].t) for i in live}
+        horizons = {i: min(horizons_of[i], configs[i].max_steps - 1 - envs[i].t) for i in live}
         asking = [i for i in live if models[i] is not None]
-        predictions = dict(zip(asking, _predict([models[i] for i in asking],
-                                                [worlds[i].frames[: envs[i].t + 1] for i in asking],
-                                                [horizons[i] for i in asking]), strict=True))  # fmt: skip
-        shared = (time.perf_counter() - start) * 1e3 / len(live)
+        predicted, spent = _predict([models[i] for i in asking], [worlds[i].frames[: envs[i].t + 1] for i in asking],
+                                    [horizons[i] for i in asking])  # fmt: skip
+        predictions, shares = dict(zip(asking, predicted, strict=True)), dict(zip(asking, spent, strict=True))
         finished = []
         for i in live:
             env, (t_list, positions, actions, rewards, outcomes) = envs[i], tracks[i]
             start = time.perf_counter()
             decision = planners[i].act(env.position, env.t, predictions.get(i))
-            times[i].append(shared + (time.perf_counter() - start) * 1e3)
+            times[i].append(shares.get(i, 0.0) + (time.perf_counter() - start) * 1e3)
             if on_decision is not None:
                 on_decision(i, env.t, env.position.copy(), predictions.get(i), decision)
             _, reward, _, _, info = env.step(decision.action)

@@ -4,8 +4,9 @@ Given the frames observed so far (frames 0 … t), a forward model predicts the 
 world does not depend on the agent, so one prediction serves every rollout of a decision. Implementations:
 `OracleModel` (the true future of a recorded world — the upper bound), `ZeroModel` (empty road, goal unknown —
 a sanity floor); the learned VQ-VAE + PixelCNN model plugs in behind the same `predict`. A model that can predict
-for many episodes at once also has a hashable `batch_key` (models with equal keys batch together) and a static
-`predict_batch(models, observed, ks)`, which `run_episodes` calls once per step for each group.
+for many episodes at once also has a hashable `batch_key` (models with equal keys batch together), a static
+`predict_batch(models, observed, ks)`, which `run_episodes` calls once per step for each group, and `cost(k)`, the
+relative work of a k-frame prediction, by which the group's time is shared.
 """
 
 from __future__ import annotations
