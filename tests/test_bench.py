@@ -66,3 +66,19 @@ def test_bench_table_prints_numbers_and_labels(monkeypatch, capsys):
     assert main(["fake"]) == 0
     printed = capsys.readouterr().out
     assert "1,234.5" in printed and "committed" in printed  # a label among the figures (it once crashed the table)
+
+
+def test_table1_grids_count_each_world_and_frame_once_when_shared():
+    from dynplan.bench.sharing import table1_grids
+
+    def row(technique, k, steps, seed=1, speed=1.0):
+        return {"technique": technique, "model": "default", "agent_speed": speed, "rollout_steps": k, "seed": seed,
+                "steps": steps}  # fmt: skip
+
+    # frames 4, 5, 6: mid k=3 asks 3 + 3 + 3 greedy grids, futures5 k=1 asks 1 + 5 at frames 4 and 5; shared: the
+    # greedy chain 3 long at every frame, the futures 1 long at two
+    counted = table1_grids([row("mid", 3, 3), row("futures5", 1, 2), {"technique": "oracle", "model": None}])
+    assert counted == {"grids_default": {"per_case": 9 + 12, "shared": 9 + 10, "ratio": round(21 / 19, 2)}}
+    # another world shares nothing; the last frames' horizons stop at the timeout frame (T - 1 = 202 at 2x)
+    late = table1_grids([row("mid", 10, 199), row("mid", 10, 199, seed=2)])["grids_default"]
+    assert late["per_case"] == late["shared"] == 2 * (10 * 189 + sum(range(10)))

@@ -16,6 +16,7 @@ from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.pipeline import bench_pipeline
 from dynplan.bench.prior import bench_prior
+from dynplan.bench.sharing import bench_sharing
 from dynplan.bench.vqvae import bench_vqvae
 from dynplan.bench.world import bench_world
 
@@ -31,6 +32,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "generation": bench_generation,
     "decision": bench_decision,
     "evaluation": bench_evaluation,
+    "sharing": bench_sharing,
     "pipeline": bench_pipeline,
 }
 
