@@ -4,7 +4,7 @@ batched world-model call per step; finished episodes leave the batch without dis
 import numpy as np
 import pytest
 
-from dynplan.env.config import RoadConfig
+from dynplan.env.config import GOAL_VALUE, RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.cases import EVAL_SEED_START, Case
 from dynplan.evaluation.protocol import case_agent
@@ -102,7 +102,7 @@ def test_models_of_any_settings_on_one_prior_predict_together_each_observation_o
         dict(samples=5, caution={"occupancy": 0.3, "margin": 0}),
     ]
     cases = [(s, w, 8 + 3 * w, k) for s in settings for w, k in ((0, 1), (0, 3), (1, 2))]  # 2 observations
-    build = [lambda s=s, n=n: load_world_model(model="default", seed=n, **s) for n, (s, *_) in enumerate(cases)]
+    build = [lambda s=s, w=w: load_world_model(model="default", seed=w, **s) for s, w, *_ in cases]  # a world's seed
     alone = [make().predict(frames[w][: t + 1], k) for make, (_, w, t, k) in zip(build, cases, strict=True)]
     rows: list[int] = []
     for name in ("generate_fast", "generate_batched"):
@@ -113,19 +113,30 @@ def test_models_of_any_settings_on_one_prior_predict_together_each_observation_o
                                                [k for *_, k in cases])  # fmt: skip
     for a, b in zip(alone, together, strict=True):
         np.testing.assert_array_equal(a.frames, b.frames)
-    # One greedy chain per observation, 3 and 2 grids long, then each one's 5 and 2 futures as long
-    assert rows == [2, 2, 1, 2 * 5, 2 * 5, 5, 2 * 2, 2 * 2, 2], rows
+    # One greedy chain per observation, 3 and 2 grids long, then its 5 futures as long (2 futures are their first 2)
+    assert rows == [2, 2, 1, 2 * 5, 2 * 5, 5], rows
 
 
-def test_sampled_futures_are_a_function_of_the_observation():
-    """Futures draw from the observation's own stream: models of any seed agree, and a shorter horizon's frames are
-    a longer one's first frames, so the cases that see the same frame can share them."""
+def test_draws_are_a_function_of_the_seed_and_the_observation():
+    """Decoder samples and futures draw from the observation's own stream: two models of one seed agree, fewer
+    frames are a longer horizon's first, and fewer samples a subset of more (their obstacles too), so the cases
+    that see the same frame can share them."""
     observed = worlds()[0].frames[:12]
-    one, other = (load_world_model(model="paper", futures=5, seed=seed) for seed in (1, 2))
-    long = one.predict(observed, 3).frames
-    np.testing.assert_array_equal(other.predict(observed, 3).frames, long)
-    np.testing.assert_array_equal(one.predict(observed, 1).frames, long[:1])
-    assert not np.array_equal(one.predict(worlds()[0].frames[:13], 1).frames, long[:1])
+
+    def model(seed: int = 1, **settings):
+        return load_world_model(model="paper", seed=seed, **settings)
+
+    for settings in ({"futures": 5}, {"samples": 5}):
+        long = model(**settings).predict(observed, 3).frames
+        np.testing.assert_array_equal(model(**settings).predict(observed, 3).frames, long)
+        np.testing.assert_array_equal(model(**settings).predict(observed, 1).frames, long[:1])
+        assert not np.array_equal(model(seed=2, **settings).predict(observed, 3).frames, long)
+
+    def obstacles(frames):
+        return (frames != 0) & (frames != GOAL_VALUE)
+
+    five, ten = (obstacles(model(samples=n).predict(observed, 3).frames) for n in (5, 10))
+    assert (ten[five]).all() and ten.sum() > five.sum()
 
 
 @pytest.mark.slow

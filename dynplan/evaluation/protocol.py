@@ -36,7 +36,7 @@ def case_agent(
 ) -> tuple[MCTSPlanner | RandomPlanner, ForwardModel | None]:
     """The planner and forward model that play `case` on its recorded `world`. `caution`: what overrides a learned
     model's configuration's own (field → value); `device`: where a learned model generates batches."""
-    inputs = AgentInputs(world, case.model, case.planner_seed(), model_dir, caution, device)
+    inputs = AgentInputs(world, case.model, case.seed, model_dir, caution, device)  # one model seed per world
     model = technique(case.technique).forward(inputs)
     if case.rollout_steps is None:
         return RandomPlanner(case.planner_seed()), model

@@ -20,9 +20,10 @@ from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
 @dataclass(frozen=True)
 class AgentInputs:
     """What a technique may build its forward model from: the recorded world (the oracle reads its future), the
-    world-model configuration of a learned technique, the planner's seed, where a pipeline's own weights are
-    (None: the committed ones), what overrides the configuration's caution and where a learned model generates
-    ("cpu" or "cuda")."""
+    world-model configuration of a learned technique, the seed of its random draws (the evaluation gives every case
+    of a world the world's seed, so that they share each frame's draws), where a pipeline's own weights are (None:
+    the committed ones), what overrides the configuration's caution and where a learned model generates ("cpu" or
+    "cuda")."""
 
     world: World
     model: str | None = None

@@ -112,21 +112,15 @@ def check_device(name: str) -> str:
     return str(device)
 
 
-def futures_generator(observation: bytes) -> torch.Generator:
-    """The random stream an observation's sampled futures draw from, seeded by a hash of its context codes: the same
-    observation gets the same futures in every episode, case and batch, and a horizon's futures are a longer one's
-    first frames — so the cases of an evaluation that see the same frame share one set."""
-    seed = int.from_bytes(hashlib.blake2b(observation, digest_size=8, person=b"dynplan-futures").digest(), "little")
+def observation_stream(seed: int, observation: bytes, purpose: str, index: int = 0) -> torch.Generator:
+    """The random stream a model with `seed` draws from for one purpose ("samples": the decoder samples of predicted
+    frame `index`; "futures": sampled future `index`) given an observation (its context codes' bytes), seeded by a hash
+    of all four. The draws are a function of what was observed, not of what came before: the cases of an
+    evaluation that share a world (and so a model seed) and have seen the same frames get the same draws, and fewer
+    samples, futures or frames are a prefix of more."""
+    key = f"{seed}/{purpose}/{index}".encode()
+    seed = int.from_bytes(hashlib.blake2b(observation, digest_size=8, key=key[:64]).digest(), "little")
     return torch.Generator().manual_seed(seed)
-
-
-def _groups(models: Sequence[LearnedWorldModel], setting: str) -> dict[int, list[int]]:
-    """The models' indices by their value of `setting` ("samples" or "futures"), leaving out 0."""
-    out: dict[int, list[int]] = {}
-    for e, model in enumerate(models):
-        if getattr(model, setting):
-            out.setdefault(getattr(model, setting), []).append(e)
-    return out
 
 
 class LearnedWorldModel:
@@ -148,7 +142,8 @@ class LearnedWorldModel:
                              f"got {tokenizer.config.name!r}")  # fmt: skip
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
         self.samples, self.futures, self.occupancy, self.margin = samples, futures, occupancy, margin
-        self.generator = torch.Generator().manual_seed(seed)
+        self.seed = seed
+        self.generator = torch.Generator().manual_seed(seed)  # `predict_codes`' sampled futures
         caution = {"occupancy": occupancy, "margin": margin}
         self.name = (
             f"model(samples={samples}, futures={futures}" + "".join(f", {k}={v}" for k, v in caution.items() if v) + ")"
@@ -266,10 +261,10 @@ class LearnedWorldModel:
         """Each model's prediction of its own episode (`observed[e]`, `ks[e]` frames ahead), computed together by
         models on the same weights (equal `batch_key`) whatever their settings: one encoding; one greedy chain
         (with its occupancy) per distinct observation, as long as the longest horizon asking for it; one set of
-        sampled futures per distinct observation and number of futures; one decoding; and each model's decoder
-        samples from its own random stream in the order its episode alone would draw them. Futures draw from the
-        observation's own stream (`futures_generator`), so a prediction does not depend on which others share its
-        batch (up to float summation order in the batched generation)."""
+        decoder samples and one of sampled futures per distinct observation and model seed, as many as the most any
+        model asks for; one decoding. Every draw comes from the observation's own stream (`observation_stream`), so
+        a prediction does not depend on which others share its batch (up to float summation order in the batched
+        generation)."""
         first = models[0]
         if any(m.batch_key != first.batch_key for m in models):
             raise ValueError("predict_batch: the models differ in weights or device; group them by batch_key")
@@ -292,34 +287,53 @@ class LearnedWorldModel:
         mid = tokenizer.pixel.mid(params).numpy()
         frames_of = [np.arange(starts[u], starts[u] + k) for u, k in zip(which, ks, strict=True)]
         others: list[list[np.ndarray]] = [[] for _ in range(E)]
-        for samples, members in _groups(models, "samples").items():  # one draw per number of samples
-            noise = [tokenizer.pixel.noise(torch.Size((ks[e], *params.shape[1:])), samples, models[e].generator)
-                     for e in members]  # fmt: skip
+        drawers: dict[tuple[int, int], list[int]] = {}  # (distinct observation, model seed) → the models sampling
+        for e, model in enumerate(models):
+            if model.samples:
+                drawers.setdefault((which[e], model.seed), []).append(e)
+        by_count: dict[int, list[tuple[tuple[int, int], int]]] = {}  # samples → ((observation, seed), frames)
+        for key, members in drawers.items():
+            most = max(models[e].samples for e in members)
+            by_count.setdefault(most, []).append((key, max(ks[e] for e in members)))
+        drawn: dict[tuple[int, int], np.ndarray] = {}
+        for count, entries in by_count.items():  # each observation's samples once: the most any model asks for
+            shape = torch.Size((1, *params.shape[1:]))
+            noise = [tokenizer.pixel.noise(shape, count, observation_stream(seed, keys[firsts[u]], "samples", f))
+                     for (u, seed), n in entries for f in range(n)]  # fmt: skip
             joined = tuple(torch.cat(parts, dim=1) for parts in zip(*noise, strict=True))  # batch axis: 1
-            rows = torch.from_numpy(np.concatenate([frames_of[e] for e in members]))
-            drawn = tokenizer.pixel.sample_with(params[rows], joined).numpy()  # (samples, Σk, H, W)
-            offsets = np.cumsum([0, *(ks[e] for e in members)])
-            for j, e in enumerate(members):
-                others[e].append(drawn[:, offsets[j] : offsets[j + 1]])
+            rows = torch.from_numpy(np.concatenate([np.arange(starts[u], starts[u] + n) for (u, _), n in entries]))
+            samples = tokenizer.pixel.sample_with(params[rows], joined).numpy()  # (count, Σ frames, H, W)
+            offsets = np.cumsum([0, *(n for _, n in entries)])
+            for j, (key, _) in enumerate(entries):
+                drawn[key] = samples[:, offsets[j] : offsets[j + 1]]
+        for key, members in drawers.items():
+            for e in members:
+                others[e].append(drawn[key][: models[e].samples, : ks[e]])
         for e, model in enumerate(models):
             if model.occupancy:
                 unsure = probability[which[e], : ks[e]] >= model.occupancy
                 others[e].append(np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)[None])
-        for F, members in _groups(models, "futures").items():  # each distinct observation's F futures once
-            needed: dict[int, int] = {}
-            for e in members:
-                needed[which[e]] = max(needed.get(which[e], 0), ks[e])
-            us = list(needed)
-            streams = [(futures_generator(keys[firsts[u]]), F) for u in us]
-            sampled, _ = first._chain(unique[us].repeat_interleave(F, dim=0), np.repeat([needed[u] for u in us], F),
-                                      1.0, streams)  # fmt: skip
-            decoded = tokenizer.decode(torch.cat([sampled[j * F : (j + 1) * F, : needed[u]].flatten(0, 1)
-                                                  for j, u in enumerate(us)])).numpy()  # fmt: skip
-            offsets = np.cumsum([0, *(F * needed[u] for u in us)])
-            futures = {u: decoded[offsets[j] : offsets[j + 1]].reshape(F, needed[u], *mid.shape[1:])
-                       for j, u in enumerate(us)}  # fmt: skip
-            for e in members:
-                others[e].append(futures[which[e]][:, : ks[e]])
+        dreamers: dict[tuple[int, int], list[int]] = {}  # (distinct observation, model seed) → the models with futures
+        for e, model in enumerate(models):
+            if model.futures:
+                dreamers.setdefault((which[e], model.seed), []).append(e)
+        by_count = {}
+        for key, members in dreamers.items():
+            most = max(models[e].futures for e in members)
+            by_count.setdefault(most, []).append((key, max(ks[e] for e in members)))
+        for count, entries in by_count.items():  # each observation's futures once: the most any model asks for
+            streams = [(observation_stream(seed, keys[firsts[u]], "futures", j), 1)
+                       for (u, seed), _ in entries for j in range(count)]  # one stream per future: fewer are a prefix
+            context_rows = torch.tensor([u for (u, _), _ in entries]).repeat_interleave(count)
+            sampled, _ = first._chain(unique[context_rows], np.repeat([n for _, n in entries], count), 1.0, streams)
+            decoded = tokenizer.decode(torch.cat([sampled[j * count : (j + 1) * count, :n].flatten(0, 1)
+                                                  for j, (_, n) in enumerate(entries)])).numpy()  # fmt: skip
+            offsets = np.cumsum([0, *(count * n for _, n in entries)])
+            futures = {key: decoded[offsets[j] : offsets[j + 1]].reshape(count, n, *mid.shape[1:])
+                       for j, (key, n) in enumerate(entries)}  # fmt: skip
+            for key, _ in entries:
+                for e in dreamers[key]:
+                    others[e].append(futures[key][: models[e].futures, : ks[e]])
         predictions = []
         for e, model in enumerate(models):
             frames = mid[frames_of[e]]
