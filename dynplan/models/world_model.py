@@ -119,8 +119,8 @@ def observation_stream(seed: int, observation: bytes, purpose: str, index: int =
     evaluation that share a world (and so a model seed) and have seen the same frames get the same draws, and fewer
     samples, futures or frames are a prefix of more."""
     key = f"{seed}/{purpose}/{index}".encode()
-    seed = int.from_bytes(hashlib.blake2b(observation, digest_size=8, key=key[:64]).digest(), "little")
-    return torch.Generator().manual_seed(seed)
+    state = int.from_bytes(hashlib.blake2b(observation, digest_size=8, key=key[:64]).digest(), "little")
+    return torch.Generator().manual_seed(state)
 
 
 class LearnedWorldModel:
@@ -210,15 +210,16 @@ class LearnedWorldModel:
         grids = torch.zeros(B, steps, h, w, dtype=torch.long)
         ph, pw = self.tokenizer.patch
         probability = np.zeros((B, steps, h * ph, w * pw), np.float32) if occupancy else None
-        groups = np.repeat(np.arange(len(streams)), [rows for _, rows in streams]) if streams else None
+        firsts = np.cumsum([0, *(rows for _, rows in streams)])[:-1]
+        stream_lengths = lengths[firsts] if len(streams) else lengths[:0]  # a group's rows share their length
         for step in range(steps):
             live = np.flatnonzero(lengths > step)
             rows = live if len(live) < B else slice(None)
             uniforms = None
             if temperature:
-                drawn = [draw_uniforms(count, h, w, temperature, generator)
-                         for g, (generator, count) in enumerate(streams) if lengths[groups == g][0] > step]  # fmt: skip
-                uniforms = torch.cat(drawn)
+                pairs = zip(streams, stream_lengths, strict=True)
+                uniforms = torch.cat([draw_uniforms(count, h, w, temperature, generator)
+                                      for (generator, count), n in pairs if n > step])  # fmt: skip
             batched = self.device != "cpu" or len(live) >= BATCHED_FROM
             weights = _frozen(self.prior, self.device if batched else "kernel")
             if batched:
@@ -322,8 +323,11 @@ class LearnedWorldModel:
             most = max(models[e].futures for e in members)
             by_count.setdefault(most, []).append((key, max(ks[e] for e in members)))
         for count, entries in by_count.items():  # each observation's futures once: the most any model asks for
-            streams = [(observation_stream(seed, keys[firsts[u]], "futures", j), 1)
-                       for (u, seed), _ in entries for j in range(count)]  # one stream per future: fewer are a prefix
+            streams = [
+                (observation_stream(seed, keys[firsts[u]], "futures", j), 1)
+                for (u, seed), _ in entries
+                for j in range(count)
+            ]  # one stream per future: fewer are a prefix
             context_rows = torch.tensor([u for (u, _), _ in entries]).repeat_interleave(count)
             sampled, _ = first._chain(unique[context_rows], np.repeat([n for _, n in entries], count), 1.0, streams)
             decoded = tokenizer.decode(torch.cat([sampled[j * count : (j + 1) * count, :n].flatten(0, 1)
