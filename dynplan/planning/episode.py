@@ -92,14 +92,14 @@ def run_episodes(
     on_decision: BatchDecisionHook | None = None,
     on_finish: Callable[[int, EpisodeResult], None] | None = None,
 ) -> list[EpisodeResult]:
-    """Play many episodes in lockstep, episode i with `planners[i]` against `models[i]` at its agent speed and
-    horizon (one value for all, or one per episode): at each step every live episode's prediction is asked for at
-    once (one batched world-model call per group of models on the same weights — episodes on the same world see
-    the same frames, and each distinct observation is predicted once), each planner then chooses, all step, and
-    finished episodes leave the batch (`on_finish(i, result)` is called as each does). The world does not depend
-    on the agent, and each model and planner keeps its own random stream, so an episode's result does not depend
-    on which others share its batch. An episode's decision time is its share of the batched prediction (by what it
-    asked for) plus its own search."""
+    """Play many episodes in lockstep, episode i with `planners[i]` against `models[i]` at its agent speed and horizon
+    (one value for all, or one per episode): at each step every live episode's prediction is asked for at once (one
+    batched world-model call per group of models on the same weights — episodes on the same world see the same
+    frames, and each distinct observation is predicted once), each planner then chooses, all step, and finished
+    episodes leave the batch (`on_finish(i, result)` is called as each does). The world does not depend on the
+    agent, a model's draws depend only on what its episode observed and each planner keeps its own random stream, so
+    an episode's result does not depend on which others share its batch. An episode's decision time is its share of
+    the batched prediction (by what it asked for) plus its own search."""
     n = len(worlds)
     if not n == len(planners) == len(models):
         raise ValueError(f"run_episodes: {n} worlds, {len(planners)} planners, {len(models)} models")
