@@ -57,7 +57,7 @@ from flows.runners import dask_address, task_runner
 
 DEFAULT_COMMAND = "python -m flows.evaluate"
 RESULTS_DIR = "datasets/results"
-#: Recorded worlds per lockstep batch (one task): two batches of 100 worlds keep two workers busy.
+#: Recorded worlds per lockstep batch (one task): Table 1's 100 worlds make two batches per world model, one a worker.
 BATCH = 50
 
 

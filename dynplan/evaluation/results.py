@@ -162,7 +162,9 @@ def results_page(results: Path, docs: Path) -> str:
              "timeouts / deaths, and steps (mean ± std over the episodes not died); 2× = 1.0 px/step (T = 203), 1× = "
              "0.5 px/step (T = 407). `[default]` is this project's world-model configuration, `[paper]` the paper's "
              "(docs/protocol.md §2); each `(paper)` line is the paper's Table 1. `futures5` (5 code futures sampled "
-             "from the prior) goes beyond the paper.", "",
+             "from the prior) goes beyond the paper. Decision ms: the median over decisions of the search plus the "
+             "decision's share of its lockstep batch's prediction, split by the grids each case asked for (docs/"
+             "protocol.md §4), played by two single-thread workers on a 2-core CPU.", "",
              render_markdown(rows).rstrip("\n"), ""]  # fmt: skip
     lines += prediction_section(results, docs)
     lines += figure1_section(results, docs)
