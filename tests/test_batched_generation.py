@@ -97,3 +97,23 @@ def test_the_world_model_generates_large_batches_batched_and_names_a_bad_device(
     assert torch.equal(model._chain(context, [2] * 3)[0], kernel) and len(calls) == 2
     with pytest.raises(ValueError, match="device must be"):
         world_model.LearnedWorldModel(tokenizer, prior, device="gpu0")
+
+
+@pytest.mark.parametrize("temperature", [0.3, 1.0, 2.5])
+@pytest.mark.parametrize(("K", "scale"), [(16, 1.0), (512, 8.0), (4096, 30.0)])
+def test_the_batched_pick_draws_pixelcnn_picks_codes(temperature, K, scale):
+    """The batched inverse transform (float32 maximum, float64 work in place, buffers reused) draws the codes of
+    `pixelcnn.pick`'s float64 rule, bit for bit, over logits from flat to peaked and uniforms from 0 to 1."""
+    from dynplan.models.batched import _pick
+    from dynplan.models.pixelcnn import pick
+
+    g = torch.Generator().manual_seed(K)
+    logits = torch.randn(64, K, generator=g) * scale
+    logits[::7] = logits[::7].round()  # ties between codes
+    uniforms = torch.rand(64, generator=g, dtype=torch.float64)
+    uniforms[:2] = torch.tensor([0.0, 1.0 - 2**-53], dtype=torch.float64)
+    work, cdf = torch.full((64, K), float("nan"), dtype=torch.float64), torch.empty(64, K, dtype=torch.float64)
+    for _ in range(2):  # the second call finds the buffers holding the first call's numbers
+        codes = _pick(logits, temperature, uniforms, work, cdf)
+        assert torch.equal(codes, pick(logits, temperature, uniforms))
+    assert len(codes.unique()) > 1

@@ -82,3 +82,15 @@ def test_table1_grids_count_each_world_and_frame_once_when_shared():
     # another world shares nothing; the last frames' horizons stop at the timeout frame (T - 1 = 202 at 2x)
     late = table1_grids([row("mid", 10, 199), row("mid", 10, 199, seed=2)])["grids_default"]
     assert late["per_case"] == late["shared"] == 2 * (10 * 189 + sum(range(10)))
+
+
+def test_bench_batched_times_greedy_and_sampled_grids_both_ways():
+    from dynplan.bench.generation import bench_batched
+
+    results = bench_batched(batches=(2,), repeats=1, threads=1)
+    assert set(results) == {f"{m}_{kind}_batch2" for m in ("paper", "default") for kind in ("greedy", "sampled")}
+    for name, figures in results.items():
+        assert figures["kernel_ms_per_grid"] > 0 and figures["batched_ms_per_grid"] > 0
+        ratio = figures["kernel_ms_per_grid"] / figures["batched_ms_per_grid"]
+        assert figures["speedup_vs_kernel"] == pytest.approx(ratio, abs=0.02), name
+        assert figures["occupancy_table"] == name.startswith("default_greedy")

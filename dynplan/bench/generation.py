@@ -14,7 +14,7 @@ import torch
 
 from dynplan.models.batched import batched_weights, generate_batched
 from dynplan.models.generation import generate_fast, kernel_weights
-from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
 from dynplan.models.registry import world_model_spec
 from dynplan.models.vqvae import VQVAE
 
@@ -71,8 +71,9 @@ def _median_ms_per_grid(generate: Callable[[], object], grids: int, repeats: int
 
 
 def bench_batched(batches: tuple[int, ...] = BATCHES, repeats: int = 5, threads: int = 2) -> dict:
-    """Per committed world model and batch size: median ms per greedy grid (with the configuration's occupancy
-    table where it has one) by the kernel and by the batched generation, and their ratio."""
+    """Per committed world model, batch size and kind of grid: median ms per grid by the kernel and by the batched
+    generation, and their ratio. `greedy`: the argmax grid, with the configuration's occupancy table where it has
+    one (the chain every learned decision makes); `sampled`: codes drawn at temperature 1 (a sampled future's)."""
     from dynplan.models.world_model import load_world_model
 
     torch.set_num_threads(threads)
@@ -84,17 +85,21 @@ def bench_batched(batches: tuple[int, ...] = BATCHES, repeats: int = 5, threads:
         lookup = None if table is None else table.numpy()
         kernel, batched = kernel_weights(prior), batched_weights(prior)
         for B in batches:
-            context = torch.randint(0, prior.config.codebook_size, (B, 4, h, w),
-                                    generator=torch.Generator().manual_seed(B))  # fmt: skip
-            by_kernel = _median_ms_per_grid(partial(generate_fast, prior, context, weights=kernel, table=lookup),
-                                            B, repeats)  # fmt: skip
-            by_batch = _median_ms_per_grid(partial(generate_batched, prior, context, weights=batched, table=table),
-                                           B, repeats)  # fmt: skip
-            results[f"{name}_batch{B}"] = {
-                "kernel_ms_per_grid": round(by_kernel, 2),
-                "batched_ms_per_grid": round(by_batch, 2),
-                "speedup_vs_kernel": round(by_kernel / by_batch, 2),
-                "occupancy_table": table is not None,
-                "threads": threads,
-            }
+            draws = torch.Generator().manual_seed(B)
+            context = torch.randint(0, prior.config.codebook_size, (B, 4, h, w), generator=draws)
+            uniforms = draw_uniforms(B, h, w, 1.0, draws)
+            kinds = {"greedy": ({"table": lookup}, {"table": table}),
+                     "sampled": ({"temperature": 1.0, "uniforms": uniforms},) * 2}  # fmt: skip
+            for kind, (for_kernel, for_batch) in kinds.items():
+                by_kernel = _median_ms_per_grid(partial(generate_fast, prior, context, weights=kernel, **for_kernel),
+                                                B, repeats)  # fmt: skip
+                by_batch = _median_ms_per_grid(partial(generate_batched, prior, context, weights=batched,
+                                                       **for_batch), B, repeats)  # fmt: skip
+                results[f"{name}_{kind}_batch{B}"] = {
+                    "kernel_ms_per_grid": round(by_kernel, 2),
+                    "batched_ms_per_grid": round(by_batch, 2),
+                    "speedup_vs_kernel": round(by_kernel / by_batch, 2),
+                    "occupancy_table": kind == "greedy" and table is not None,
+                    "threads": threads,
+                }
     return results

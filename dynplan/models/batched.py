@@ -108,11 +108,19 @@ def _first_argmax(logits: torch.Tensor, descending: torch.Tensor) -> torch.Tenso
     return (len(descending) - torch.addcmul(descending, at_max, descending).amax(-1)).long()
 
 
-def _pick(logits: torch.Tensor, temperature: float, uniforms: torch.Tensor) -> torch.Tensor:
+def _pick(logits: torch.Tensor, temperature: float, uniforms: torch.Tensor, work: torch.Tensor,
+          cdf: torch.Tensor) -> torch.Tensor:  # fmt: skip
     """Codes (B,) from logits (B, K) by inverse transform of the softmax at `temperature` > 0 (in float64) with
-    one uniform number per row — `pixelcnn.pick`'s rule."""
-    scaled = logits.double() / temperature
-    cdf = torch.exp(scaled - scaled.max(-1, keepdim=True).values).cumsum(-1)
+    one uniform number per row — `pixelcnn.pick`'s rule, with its numbers: the maximum is taken in float32 (division
+    by `temperature` > 0 is monotone, so max(x / T) is max(x) / T) and x / 1.0 is x. `work` and `cdf` (B, K)
+    float64 receive the weights and their cumulative sums: a buffer per generation, not two allocations per
+    position."""
+    top = logits.amax(-1, keepdim=True).double()
+    work.copy_(logits)
+    if temperature != 1.0:
+        work /= temperature
+        top /= temperature
+    torch.cumsum(work.sub_(top).exp_(), -1, out=cdf)
     index = torch.searchsorted(cdf, (uniforms * cdf[:, -1]).unsqueeze(-1), right=True)
     return index.squeeze(-1).clamp(max=logits.shape[-1] - 1)
 
@@ -151,6 +159,10 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
     left = max(w.shape[0] // C for w in weights.h_weight) - 1
     h = torch.zeros(L + 1, B, left + W, C, device=device)
     codes = torch.zeros(B, H, W, dtype=torch.long, device=device)
+    K = weights.embed.shape[0]
+    logits = torch.empty(B, K, device=device)
+    if temperature > 0.0:
+        work, cdf = (torch.empty(B, K, dtype=torch.float64, device=device) for _ in range(2))
     expected = None
     if table is not None:
         table = table.to(device=device, dtype=torch.float32)
@@ -186,12 +198,13 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
                     out += columns[layer][j]
                 columns[layer + 1][j].copy_(out)
             hidden = torch.addmm(weights.b1, torch.relu(columns[L][j]), weights.w1).relu_()
-            logits = torch.addmm(weights.b2, hidden, weights.w2)  # (B, K)
-            code = _first_argmax(logits, weights.descending)
+            torch.addmm(weights.b2, hidden, weights.w2, out=logits)  # (B, K)
             if expected is not None:
                 expected[:, i, j] = torch.softmax(logits, -1) @ table
             if temperature > 0.0:
-                code = _pick(logits, temperature, uniforms[:, i, j])
+                code = _pick(logits, temperature, uniforms[:, i, j], work, cdf)
+            else:
+                code = _first_argmax(logits, weights.descending)
             codes[:, i, j] = code
             columns[0][j].copy_(weights.embed[code])
         v_in[0, :, top + i, top : top + W] = h[0, :, left:]
