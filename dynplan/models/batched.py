@@ -100,12 +100,12 @@ def batched_weights(model: ConditionalPixelCNN, device: str | torch.device = "cp
     )
 
 
-def _first_argmax(logits: torch.Tensor, descending: torch.Tensor) -> torch.Tensor:
+def _first_argmax(logits: torch.Tensor, descending: torch.Tensor, work: torch.Tensor) -> torch.Tensor:
     """`logits.argmax(-1)` (B,) — the first maximum — from vectorised float operations only: sign(x − max) + 1 is
     1 exactly at the maxima and 0 elsewhere, and ranking by `descending` (K … 1) finds the first. A CPU reduces
-    floats several times faster than it finds an index."""
-    at_max = torch.sign(logits - logits.amax(-1, keepdim=True))
-    return (len(descending) - torch.addcmul(descending, at_max, descending).amax(-1)).long()
+    floats several times faster than it finds an index. `work` (B, K) float32 holds the intermediates."""
+    torch.sub(logits, logits.amax(-1, keepdim=True), out=work).sign_()
+    return (len(descending) - torch.addcmul(descending, work, descending, out=work).amax(-1)).long()
 
 
 def _pick(logits: torch.Tensor, temperature: float, uniforms: torch.Tensor, work: torch.Tensor,
@@ -161,8 +161,13 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
     codes = torch.zeros(B, H, W, dtype=torch.long, device=device)
     K = weights.embed.shape[0]
     logits = torch.empty(B, K, device=device)
+    # Buffers every position reuses (a fresh B × K array per operation costs the allocator more than the
+    # arithmetic): the draw's float64 weights and sums, or the argmax's intermediates; the occupancy's softmax.
     if temperature > 0.0:
         work, cdf = (torch.empty(B, K, dtype=torch.float64, device=device) for _ in range(2))
+    else:
+        work = torch.empty(B, K, device=device)
+    probs = torch.empty(B, K, device=device) if table is not None else None
     expected = None
     if table is not None:
         table = table.to(device=device, dtype=torch.float32)
@@ -200,11 +205,11 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
             hidden = torch.addmm(weights.b1, torch.relu(columns[L][j]), weights.w1).relu_()
             torch.addmm(weights.b2, hidden, weights.w2, out=logits)  # (B, K)
             if expected is not None:
-                expected[:, i, j] = torch.softmax(logits, -1) @ table
+                expected[:, i, j] = torch.ops.aten._softmax.out(logits, -1, False, out=probs) @ table
             if temperature > 0.0:
                 code = _pick(logits, temperature, uniforms[:, i, j], work, cdf)
             else:
-                code = _first_argmax(logits, weights.descending)
+                code = _first_argmax(logits, weights.descending, work)
             codes[:, i, j] = code
             columns[0][j].copy_(weights.embed[code])
         v_in[0, :, top + i, top : top + W] = h[0, :, left:]
