@@ -167,9 +167,9 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
         work, cdf = (torch.empty(B, K, dtype=torch.float64, device=device) for _ in range(2))
     else:
         work = torch.empty(B, K, device=device)
-    probs = torch.empty(B, K, device=device) if table is not None else None
     expected = None
     if table is not None:
+        probs = torch.empty(B, K, device=device)
         table = table.to(device=device, dtype=torch.float32)
         expected = torch.empty(B, H, W, table.shape[1], device=device)
     # Views, made once, of what each position reads and writes: layer l's window of columns j − taps + 1 … j
