@@ -142,6 +142,17 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     assert "optimiser" not in state and state["epoch"] == 2
     snapshot = load_pixelcnn_checkpoint(exported).state_dict()
     assert all(torch.equal(v, load_pixelcnn_checkpoint(path).state_dict()[k]) for k, v in snapshot.items())
+    # A longer context from those weights: at the start it predicts exactly as the source did from its last four
+    # frames (the older frames' conditioning weights start at zero); one epoch on padded windows then moves them.
+    source = load_pixelcnn_checkpoint(exported)
+    longer = config.model_copy(update={"context": 7, "learning_rate": 1e-9})
+    grown = load_pixelcnn_checkpoint(train_pixelcnn(store, "codes_tiny", tmp_path / "longer", longer, TrainBudget(
+        epochs=1, steps_per_epoch=2, val_frames=8, threads=1, init_from=str(exported))))  # fmt: skip
+    assert grown.config.context == 7
+    first = grown.conditioner[0].weight[:, : 3 * config.embed_dim]
+    assert 0 < first.abs().max() < 1e-6  # barely moved from zero by a vanishing rate
+    contexts = torch.randint(0, 16, (5, 7, 6, 6), generator=torch.Generator().manual_seed(0))
+    torch.testing.assert_close(grown.condition(contexts), source.condition(contexts[:, 3:]), atol=1e-4, rtol=0)
 
 
 @pytest.mark.parametrize(("seed", "K", "grid", "batch"), [(0, 16, 6, 1), (1, 64, 6, 3), (2, 32, 12, 2), (3, 16, 5, 1)])

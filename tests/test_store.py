@@ -140,6 +140,14 @@ def test_torch_datasets_split_by_episode(tmp_path, recorded_logs):
     np.testing.assert_array_equal(target.numpy(), frames[11])
     with pytest.raises(IndexError):
         windows[len(windows)]
+    # A longer context than the first decision has seen: its windows start at the first predicted frame (5), their
+    # history padded with frame 0, as the world model pads a short observation.
+    long = WindowDataset(store, "all", context=8)
+    assert len(long) == 6 * (407 - 5) and long.target(402 + 3) == (1, 8)
+    context, target = long[402]  # episode 1, target frame 5
+    np.testing.assert_array_equal(context.numpy(), frames[[0, 0, 0, 0, 1, 2, 3, 4]])
+    np.testing.assert_array_equal(target.numpy(), frames[5])
+    np.testing.assert_array_equal(long[402 + 3][0].numpy(), frames[0:8])
     with pytest.raises(ValueError, match="split must be"):
         FrameDataset(store, "test")
     with pytest.raises(KeyError, match="no array 'codes'"):

@@ -53,8 +53,12 @@ def test_predicts_k_frames_from_the_last_four(tiny_model, samples, futures):
     twins = [LearnedWorldModel(tokenizer, prior, samples=samples, futures=futures, seed=4) for _ in range(2)]
     same = twins[0].predict(frames[5:9], 3)  # only the last four frames matter
     np.testing.assert_array_equal(same.frames, twins[1].predict(frames[:9], 3).frames)
-    with pytest.raises(ValueError, match="needs the last 4 frames"):
-        model.predict(frames[:2], 1)
+    # A short observation is the first frame repeated before its start (dynplan.data.history), as in training.
+    short = [LearnedWorldModel(tokenizer, prior, samples=samples, futures=futures, seed=4) for _ in range(2)]
+    padded = np.concatenate([frames[:1], frames[:1], frames[:2]])
+    np.testing.assert_array_equal(short[0].predict(frames[:2], 2).frames, short[1].predict(padded, 2).frames)
+    with pytest.raises(ValueError, match="no frames observed"):
+        model.predict(frames[:0], 1)
 
 
 def test_sampled_futures_are_merged_conservatively(tiny_model):

@@ -1,5 +1,6 @@
 """Torch datasets over a Zarr store: single frames (for the VQ-VAE) and windows of consecutive frames (4 of
-context + 1 target, for the PixelCNN), split by episode into train and validation.
+context + 1 target, for the PixelCNN; a longer context repeats frame 0 before the episode's start, as
+`dynplan.data.history` says), split by episode into train and validation.
 
 The split is a pure function of each episode's seed, so it never changes as the store grows and an episode is
 never in both splits. Episodes are read whole (one Zarr chunk) and kept in memory once read.
@@ -16,6 +17,7 @@ import zarr
 from torch.utils.data import Dataset
 
 from dynplan.data.chunks import read
+from dynplan.data.history import context_indices, first_target
 
 Split = Literal["train", "validation", "all"]
 #: Frames of context a window gives before its target (docs/protocol.md §2: the PixelCNN conditions on the last 4).
@@ -74,7 +76,8 @@ class FrameDataset(_EpisodeArray):
 
 
 class WindowDataset(_EpisodeArray):
-    """Windows of `context + 1` consecutive frames of one episode: item → (context (4, …), target (…))."""
+    """Windows of one episode: item → (context (context, …), target (…)), the `context` frames before the target
+    (`dynplan.data.history`), for every target from `first_target(context)` to the episode's last frame."""
 
     def __init__(self, store: str | os.PathLike, split: Split = "train", val_fraction: float = 0.1,
                  array: str = "frames", context: int = CONTEXT):  # fmt: skip
@@ -82,14 +85,21 @@ class WindowDataset(_EpisodeArray):
         if not 1 <= context < self.n_frames:
             raise ValueError(f"context must be in [1, {self.n_frames - 1}], got {context}")
         self.context = context
-        self.per_episode = self.n_frames - context
+        self.first_target = first_target(context)
+        self.per_episode = self.n_frames - self.first_target
 
     def __len__(self) -> int:
         return len(self.episodes) * self.per_episode
 
-    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+    def target(self, index: int) -> tuple[int, int]:
+        """(the split's episode position, the target's frame index) of window `index`."""
         if not 0 <= index < len(self):
             raise IndexError(f"index {index} out of range for {len(self)} windows")
-        episode, start = divmod(int(index), self.per_episode)
-        window = self.episode(episode)[start : start + self.context + 1]
-        return torch.from_numpy(np.array(window[:-1])), torch.from_numpy(np.array(window[-1]))
+        episode, offset = divmod(int(index), self.per_episode)
+        return episode, self.first_target + offset
+
+    def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
+        episode, target = self.target(index)
+        frames = self.episode(episode)
+        history = frames[context_indices(target, self.context)]
+        return torch.from_numpy(np.array(history)), torch.from_numpy(np.array(frames[target]))

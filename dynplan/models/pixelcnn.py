@@ -149,6 +149,20 @@ class ConditionalPixelCNN(nn.Module):
             q, _ = torch.linalg.qr(torch.randn(max(D, width), min(D, width), generator=generator))
             table.weight.copy_(standard @ (q if width <= D else q.T))
 
+    @torch.no_grad()
+    def place_warm_start(self, name: str, source: torch.Tensor, into: torch.Tensor) -> bool:
+        """Start a prior of a longer context from a shorter one's weights (`flows.train --init-from`): the first
+        conditioning convolution keeps the source's weights on the channels of the most recent frames and zero on
+        the older ones, so the grown prior first predicts exactly as the source did. False for any other tensor."""
+        if name != "conditioner.0.weight" or source.shape[0] != into.shape[0]:
+            return False
+        grown = into.shape[1] - source.shape[1]
+        if grown <= 0 or grown % self.config.embed_dim:
+            return False
+        into.zero_()
+        into[:, grown:].copy_(source)  # channels are frame-major, oldest frame first
+        return True
+
     def condition(self, context: torch.Tensor) -> torch.Tensor:
         """context (B, 4, h, w) codes → conditioning map (B, condition_channels, h, w)."""
         B, n, h, w = context.shape

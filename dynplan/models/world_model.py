@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dynplan.data.history import last_frames
 from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models import checkpoint
 from dynplan.models.batched import BatchedWeights, batched_weights, generate_batched
@@ -162,17 +163,16 @@ class LearnedWorldModel:
 
     @torch.inference_mode()
     def encode_context(self, observed: np.ndarray) -> torch.Tensor:
-        """The code grids (context, h, w) of the last `context` observed frames."""
+        """The code grids (context, h, w) of the last `context` observed frames (frame 0 repeated before a short
+        observation's start)."""
         return self._encode_contexts([observed])[0]
 
     def _encode_contexts(self, observed: Sequence[np.ndarray]) -> torch.Tensor:
-        """(E, context, h, w) code grids of the last `context` frames of each of E observations, in one pass over
+        """(E, context, h, w) code grids of the last `context` frames of each of E observations (the first frame
+        repeated before a shorter one's start, as the prior was trained: `dynplan.data.history`), in one pass over
         the frames the tokenizer has not encoded lately (`_ENCODED`: the next decision's context shares all but
         one frame with this one's)."""
-        short = [len(o) for o in observed if len(o) < self.context]
-        if short:
-            raise ValueError(f"the model needs the last {self.context} frames, got {short[0]}")
-        frames = [np.ascontiguousarray(frame) for o in observed for frame in o[-self.context :]]
+        frames = [np.ascontiguousarray(frame) for o in observed for frame in last_frames(o, self.context)]
         known = _ENCODED.setdefault(self.tokenizer, OrderedDict())
         keys = [(frame.shape, frame.tobytes()) for frame in frames]
         missing = list(dict.fromkeys(key for key in keys if key not in known))

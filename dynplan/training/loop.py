@@ -199,7 +199,8 @@ def _cpu(state):
 def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:
     """Start `model` from the weights of the checkpoint at `path`. Tensors of the same shape are copied; a tensor
     grown along one dimension (a larger codebook) gets the old entries first and keeps its fresh ones after
-    them (unused codes, which dead-code restarts then place). Anything else is a CheckpointError."""
+    them (unused codes, which dead-code restarts then place); a model may place a tensor it grows by its own rule
+    (`place_warm_start`: the prior's longer context). Anything else is a CheckpointError."""
     source = checkpoint.load(path, kind)["model"]
     target = model.state_dict()
     if "code_sharpness" in target and "code_sharpness" not in source:  # from an uncalibrated decoder: scale 1
@@ -211,8 +212,11 @@ def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:
             f"{path}: cannot start this run from it: the architecture differs (parameters {differing} …)"
         )
     with torch.no_grad():
+        place = getattr(model, "place_warm_start", None)  # a model's own rule for a tensor it grows
         for name, value in source.items():
             into = target[name]
+            if place is not None and place(name, value, into):
+                continue
             grown = (
                 [d for d in range(into.dim()) if into.shape[d] != value.shape[d]] if into.dim() == value.dim() else None
             )

@@ -1,4 +1,5 @@
-"""Train the conditional PixelCNN prior on a Z-code array: 5-code-grid windows, 4 of context + 1 target.
+"""Train the conditional PixelCNN prior on a Z-code array: windows of `context` code grids (4 in both presets;
+frame 0 repeated before an episode's start, `dynplan.data.history`) + 1 target.
 
 Runs in the shared loop (`training/loop.py`): resumable, a checkpoint and a metrics row per epoch. After each
 epoch it scores a fixed set of validation windows: teacher-forced code accuracy, and — decoding its greedy
@@ -16,7 +17,8 @@ import numpy as np
 import torch
 import zarr
 
-from dynplan.data.datasets import CONTEXT, WindowDataset
+from dynplan.data.datasets import WindowDataset
+from dynplan.data.history import context_indices, first_target
 from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
@@ -55,22 +57,24 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         model.embed_codebook(tokenizer.quantizer.embed[0], torch.Generator().manual_seed(budget.seed))
     model = model.to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-    train_set = WindowDataset(store, "train", array=codes)
+    train_set = WindowDataset(store, "train", array=codes, context=config.context)
     if len(train_set.episodes) == 0:
-        train_set = WindowDataset(store, "all", array=codes)
+        train_set = WindowDataset(store, "all", array=codes, context=config.context)
     grids = _windows(train_set)
     E, T = grids.shape[:2]
-    val_context, val_target, val_frames = _validation(store, codes, budget.val_frames)
+    first = first_target(config.context)
+    val_context, val_target, val_frames = _validation(store, codes, budget.val_frames, config.context)
 
     def step(generator: torch.Generator) -> dict[str, float]:
         e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
-        s = torch.randint(0, T - CONTEXT, (config.batch_size,), generator=generator).numpy()
-        window = grids[e[:, None], s[:, None] + np.arange(CONTEXT + 1)].astype(np.int64)  # (B, 5, h, w)
+        target = first + torch.randint(0, T - first, (config.batch_size,), generator=generator).numpy()
+        frames = np.concatenate([context_indices(target, config.context), target[:, None]], axis=1)
+        window = grids[e[:, None], frames].astype(np.int64)  # (B, context + 1, h, w)
         window = torch.from_numpy(window).to(device, non_blocking=True)
         if config.learning_rate_halflife:
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(config, _steps_taken(optimiser))
-        out = model(window[:, :CONTEXT], window[:, CONTEXT])
+        out = model(window[:, :-1], window[:, -1])
         optimiser.zero_grad(set_to_none=True)
         out.loss.backward()
         optimiser.step()
@@ -120,14 +124,13 @@ def _steps_taken(optimiser: torch.optim.Optimizer) -> int:
     return int(state["step"]) if "step" in state else 0
 
 
-def _validation(store: str, codes: str, n: int) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+def _validation(store: str, codes: str, n: int, context: int) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
     """A fixed set of validation windows (evenly spread) and the true frames of their targets."""
-    val = WindowDataset(store, "validation", array=codes)
+    val = WindowDataset(store, "validation", array=codes, context=context)
     if len(val.episodes) == 0:
-        val = WindowDataset(store, "all", array=codes)
+        val = WindowDataset(store, "all", array=codes, context=context)
     picks = np.linspace(0, len(val) - 1, min(n, len(val))).astype(int)
     contexts, targets = zip(*(val[int(i)] for i in picks), strict=True)
     frames_array = zarr.open_group(store, mode="r", use_consolidated=False)["frames"]
-    frames = np.stack([frames_array[int(val.episodes[i // val.per_episode]), i % val.per_episode + CONTEXT]
-                       for i in picks])  # fmt: skip
+    frames = np.stack([frames_array[int(val.episodes[e]), t] for e, t in map(val.target, picks)])
     return torch.stack(contexts).long(), torch.stack(targets).long(), frames
