@@ -117,3 +117,25 @@ def test_the_batched_pick_draws_pixelcnn_picks_codes(temperature, K, scale):
         codes = _pick(logits, temperature, uniforms, work, cdf)
         assert torch.equal(codes, pick(logits, temperature, uniforms))
     assert len(codes.unique()) > 1
+
+
+@pytest.mark.parametrize("temperature", [0.3, 1.0, 2.5])
+@pytest.mark.parametrize(("K", "scale"), [(16, 1.0), (512, 8.0), (4096, 30.0)])
+def test_the_kernels_draw_picks_pixelcnn_picks_codes(temperature, K, scale):
+    """The compiled draw the kernel and the CPU's batched generation share (`draw_rows`: a vectorised float64
+    exp within an ulp of libm's, four rows' sums at a time and a remainder row by row) draws `pixelcnn.pick`'s codes
+    over logits from flat to peaked, with ties, and uniforms from 0 to 1."""
+    import numpy as np
+
+    from dynplan.models.generation import draw_rows
+    from dynplan.models.pixelcnn import pick
+
+    g = torch.Generator().manual_seed(K + 1)
+    logits = torch.randn(67, K, generator=g) * scale  # 16 blocks of four rows and three alone
+    logits[::7] = logits[::7].round()
+    uniforms = torch.rand(67, generator=g, dtype=torch.float64)
+    uniforms[:2] = torch.tensor([0.0, 1.0 - 2**-53], dtype=torch.float64)
+    codes = np.full(67, -1, np.int64)
+    draw_rows(logits.numpy(), temperature, uniforms.numpy(), np.full((4, K), np.nan), np.empty(K), codes)
+    assert np.array_equal(codes, pick(logits, temperature, uniforms).numpy())
+    assert len(np.unique(codes)) > 1

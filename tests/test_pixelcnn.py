@@ -252,6 +252,22 @@ def test_the_kernels_exp_and_gate_match_libm():
     assert np.max(np.abs(gated - want)) < 2e-7
 
 
+def test_the_kernels_float64_exp_is_within_an_ulp_of_numpys():
+    import numpy as np
+
+    from dynplan.models.generation import _exp64_inplace
+
+    x = -np.linspace(0.0, 708.0, 1_000_001)
+    x[1] = -1e-300
+    out = x.copy()
+    _exp64_inplace(out, np.empty(len(x)))
+    exact = np.exp(x)
+    assert np.max(np.abs(out - exact) / np.spacing(exact)) <= 1.0
+    tiny = np.array([-708.0, -708.5, -745.0, -1e4])
+    _exp64_inplace(tiny, np.empty(4))
+    assert np.all(tiny == tiny[0]) and abs(tiny[0] - np.exp(-708.0)) <= np.spacing(np.exp(-708.0))  # flushed to e^-708
+
+
 def test_the_kernels_row_blocks_give_each_row_its_grid_alone():
     from dynplan.models.generation import generate_fast
 

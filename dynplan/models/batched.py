@@ -19,8 +19,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
+from dynplan.models.generation import draw_rows
 from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
 
 #: The most grids generated together: larger batches run in blocks of this many rows. On a 2-core CPU the cost per
@@ -163,7 +165,12 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
     logits = torch.empty(B, K, device=device)
     # Buffers every position reuses (a fresh B × K array per operation costs the allocator more than the
     # arithmetic): the draw's float64 weights and sums, or the argmax's intermediates; the occupancy's softmax.
-    if temperature > 0.0:
+    on_cpu = device.type == "cpu"
+    if temperature > 0.0 and on_cpu:  # the kernel's draw, row by row (`draw_rows`), on each position's logits
+        drawn = torch.empty(B, dtype=torch.long)
+        numbers = uniforms.permute(1, 2, 0).contiguous().numpy()  # (H, W, B): each position's numbers contiguous
+        scratch = (np.empty((4, K)), np.empty(K), logits.numpy(), drawn.numpy())
+    elif temperature > 0.0:
         work, cdf = (torch.empty(B, K, dtype=torch.float64, device=device) for _ in range(2))
     else:
         work = torch.empty(B, K, device=device)
@@ -206,7 +213,11 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
             torch.addmm(weights.b2, hidden, weights.w2, out=logits)  # (B, K)
             if expected is not None:
                 expected[:, i, j] = torch.ops.aten._softmax.out(logits, -1, False, out=probs) @ table
-            if temperature > 0.0:
+            if temperature > 0.0 and on_cpu:
+                cdf_rows, scale, logits_np, drawn_np = scratch
+                draw_rows(logits_np, float(temperature), numbers[i, j], cdf_rows, scale, drawn_np)
+                code = drawn
+            elif temperature > 0.0:
                 code = _pick(logits, temperature, uniforms[:, i, j], work, cdf)
             else:
                 code = _first_argmax(logits, weights.descending, work)

@@ -250,19 +250,107 @@ def _expected(logits, top, table, probs, bits, out):
         out[p] = acc * scale
 
 
+#: exp's float64 range reduction (Cephes' split of ln 2: n · LN2_HI is exact for the |n| < 1,100 used here) and
+#: Taylor's polynomial of degree 13 for e^r on |r| ≤ ln 2 / 2 (truncation below 1e-17, relative).
+_LN2_HI64, _LN2_LO64 = 6.93145751953125e-1, 1.42860682030941723212e-6
+_T2, _T3, _T4, _T5, _T6, _T7 = 1 / 2, 1 / 6, 1 / 24, 1 / 120, 1 / 720, 1 / 5040
+_T8, _T9, _T10, _T11, _T12, _T13 = 1 / 40320, 1 / 362880, 1 / 3628800, 1 / 39916800, 1 / 479001600, 1 / 6227020800
+
+
+#: 1.5 · 2^52: adding it to a float64 of magnitude below 2^51 rounds it to an integer held in the low mantissa bits
+#: (so 2^n is built with 64-bit integer lanes, which AVX2 has, rather than a float → int64 conversion, which it lacks).
+_ROUND_MAGIC = 6755399441055744.0
+_ROUND_MAGIC_BITS = 4843621399236968448  # its bit pattern
+
+
 @numba.njit(cache=True, inline="always")
-def _inverse_transform(logits, temperature, u, cdf):
-    """The first code whose cumulative softmax weight (at `temperature`, in float64) exceeds u · total."""
-    top = np.max(logits) / temperature
+def _exp64_inplace(x, scale):
+    """x[q] ← exp(x[q]) for float64 x ≤ 0, vectorisable like `_exp_inplace` (libm's exp is one call per element):
+    within 1 ulp of numpy's exp (`tests/test_pixelcnn.py`); below e^−708 it flushes to e^−708. `scale` (float64, at
+    least len(x)): scratch for 2^n."""
+    bits = scale.view(np.int64)
+    for q in range(x.shape[0]):
+        v = x[q] if x[q] > -708.0 else -708.0
+        rounded = v * 1.4426950408889634 + _ROUND_MAGIC
+        n = rounded - _ROUND_MAGIC
+        r = (v - n * _LN2_HI64) - n * _LN2_LO64
+        p = ((((((_T13 * r + _T12) * r + _T11) * r + _T10) * r + _T9) * r + _T8) * r + _T7) * r + _T6
+        x[q] = ((((((p * r + _T5) * r + _T4) * r + _T3) * r + _T2) * r + 1.0) * r) + 1.0
+        scale[q] = rounded
+    for q in range(x.shape[0]):
+        bits[q] = (bits[q] - _ROUND_MAGIC_BITS + 1023) << 52
+    for q in range(x.shape[0]):
+        x[q] *= scale[q]
+
+
+@numba.njit(cache=True, fastmath={"nnan", "ninf", "nsz", "reassoc"})
+def _max(x):
+    """The largest of finite float32 values, reduced in vector lanes (a maximum is the same in any order)."""
+    top = x[0]
+    for k in range(1, x.shape[0]):
+        top = max(top, x[k])
+    return top
+
+
+@numba.njit(cache=True, fastmath={"contract"}, inline="always")
+def _weights(logits, temperature, out, scale):
+    """out[k] ← exp(logits[k] / temperature − max / temperature) in float64: the softmax's unnormalised weights."""
+    top = _max(logits) / temperature
+    for k in range(logits.shape[0]):
+        out[k] = np.float64(logits[k]) / temperature - top
+    _exp64_inplace(out, scale)
+
+
+@numba.njit(cache=True, inline="always")
+def _first_above(cdf, threshold):
+    """The first k with cdf[k] > threshold in non-decreasing `cdf` (binary search), else the last index."""
+    lo, hi = 0, cdf.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cdf[mid] > threshold:
+            hi = mid
+        else:
+            lo = mid + 1
+    return min(lo, cdf.shape[0] - 1)
+
+
+@numba.njit(cache=True, fastmath={"contract"})
+def _draw(logits, temperature, u, cdf, scale):
+    """The first code whose cumulative softmax weight (at `temperature` > 0, float64, summed in code order) exceeds
+    u · total — `pixelcnn.pick`'s rule, with a vectorised exp (`_exp64_inplace`) in place of one libm call per code.
+    `cdf` and `scale` (float64, at least K long): scratch."""
+    K = logits.shape[0]
+    cdf = cdf[:K]
+    _weights(logits, temperature, cdf, scale)
     total = 0.0
-    for k in range(logits.shape[0]):
-        total += np.exp(np.float64(logits[k]) / temperature - top)
+    for k in range(K):
+        total += cdf[k]
         cdf[k] = total
-    threshold = u * total
-    for k in range(logits.shape[0]):
-        if cdf[k] > threshold:
-            return k
-    return logits.shape[0] - 1
+    return _first_above(cdf, u * total)
+
+
+@numba.njit(cache=True, nogil=True, fastmath={"contract"})
+def draw_rows(logits, temperature, uniforms, cdf, scale, codes):
+    """codes[b] ← `_draw` of row b of logits (B, K) float32 with uniforms[b] (float64) — the batched generation's
+    draw, each row with the kernel's arithmetic — four rows at a time, whose running sums advance together (four
+    independent chains instead of one: the sum's latency, not its arithmetic, bounds a single row). `cdf` (4, K)
+    and `scale` (K,) float64: scratch."""
+    B, K = logits.shape
+    for start in range(0, B - B % 4, 4):
+        for r in range(4):
+            _weights(logits[start + r], temperature, cdf[r], scale)
+        c0, c1, c2, c3 = cdf[0], cdf[1], cdf[2], cdf[3]
+        t0 = t1 = t2 = t3 = 0.0
+        for k in range(K):
+            t0 += c0[k]
+            t1 += c1[k]
+            t2 += c2[k]
+            t3 += c3[k]
+            c0[k], c1[k], c2[k], c3[k] = t0, t1, t2, t3
+        for r in range(4):
+            codes[start + r] = _first_above(cdf[r], uniforms[start + r] * cdf[r, K - 1])
+    for b in range(B - B % 4, B):
+        codes[b] = _draw(logits[b], temperature, uniforms[b], cdf[0], scale)
 
 
 @numba.njit(cache=True, nogil=True)  # episodes on a thread pool generate in parallel
@@ -292,6 +380,7 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, codes
     hidden = np.zeros(w1.shape[1], np.float32)
     logits = np.zeros(w2.shape[1], np.float32)
     cdf = np.zeros(w2.shape[1], np.float64)
+    scale64 = np.zeros(w2.shape[1], np.float64)
     probs = np.zeros(w2.shape[1], np.float32)
     bits = np.zeros(max(w2.shape[1], C2), np.int32)
     scratch = np.zeros(C2, np.float32)
@@ -339,10 +428,11 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, codes
                     hidden[o] = max(hidden[o], 0.0)
                 logits[:] = b2
                 _add_scaled(logits, w2, hidden)
-                code = np.argmax(logits)
-                if table.shape[0] > 0:
-                    _expected(logits, logits[code], table, probs, bits, expected[b, i, j])
+                if table.shape[0] > 0 or temperature == 0.0:
+                    code = np.argmax(logits)
+                    if table.shape[0] > 0:
+                        _expected(logits, logits[code], table, probs, bits, expected[b, i, j])
                 if temperature > 0.0:
-                    code = _inverse_transform(logits, temperature, uniforms[b, i, j], cdf)
+                    code = _draw(logits, temperature, uniforms[b, i, j], cdf, scale64)
                 codes[b, i, j] = code
                 x[i, j] = embed[code]

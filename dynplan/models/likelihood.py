@@ -10,6 +10,8 @@ as uint8 on the world's values.
 
 from __future__ import annotations
 
+import numba
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -32,10 +34,49 @@ def value_index(frames: torch.Tensor) -> torch.Tensor:
 
 
 def snap(unit: torch.Tensor) -> torch.Tensor:
-    """Values in [−1, 1] → uint8 frames on the nearest world value."""
+    """Values in [−1, 1] → uint8 frames on the nearest world value (the first of two equally near)."""
     values = torch.tensor(WORLD_VALUES, dtype=torch.float32, device=unit.device)
+    if unit.device.type == "cpu" and unit.dtype == torch.float32:
+        out = np.empty(unit.shape, np.uint8)
+        _snap_into(np.ascontiguousarray(unit.numpy()).reshape(-1), values.numpy(), out.reshape(-1))
+        return torch.from_numpy(out)
     nearest = ((unit.unsqueeze(-1) + 1.0) * 127.5 - values).abs().argmin(-1)
     return values[nearest].to(torch.uint8)
+
+
+@numba.njit(cache=True, inline="always")
+def _nearest(unit, values):
+    """The world value nearest (u + 1) · 127.5 in float32 arithmetic, as `snap`'s tensor form computes it."""
+    y = (unit + np.float32(1.0)) * np.float32(127.5)
+    best, distance = 0, abs(y - values[0])
+    for v in range(1, values.shape[0]):
+        d = abs(y - values[v])
+        if d < distance:
+            best, distance = v, d
+    return np.uint8(values[best])
+
+
+@numba.njit(cache=True, nogil=True)
+def _snap_into(unit, values, out):
+    """out[q] ← the world value nearest unit[q] (flat float32 → uint8): one pass, no (…, values) intermediates."""
+    for q in range(unit.shape[0]):
+        out[q] = _nearest(unit[q], values)
+
+
+@numba.njit(cache=True, nogil=True)
+def _mid_into(params, n, values, out):
+    """out[b, y, x] ← the world value nearest the mean of the first most probable of n components, clamped to
+    [−1, 1]: `DMoL.mid` over (B, ≥ 2n, H, W) float32 parameters (mixture logits, then means) in one pass."""
+    B, _, H, W = params.shape
+    one = np.float32(1.0)
+    for b in range(B):
+        for y in range(H):
+            for x in range(W):
+                best, top = 0, params[b, 0, y, x]
+                for c in range(1, n):
+                    if params[b, c, y, x] > top:
+                        best, top = c, params[b, c, y, x]
+                out[b, y, x] = _nearest(min(max(params[b, n + best, y, x], -one), one), values)
 
 
 class DMoL:
@@ -47,6 +88,11 @@ class DMoL:
     @property
     def channels(self) -> int:
         return 3 * self.n_mix
+
+    @property
+    def mid_channels(self) -> int:
+        """The leading channels `mid` reads: the mixture logits and the means."""
+        return 2 * self.n_mix
 
     def _split(self, params: torch.Tensor):
         logit_pi, mu, log_s = params.split(self.n_mix, dim=1)
@@ -70,8 +116,12 @@ class DMoL:
         return -torch.logsumexp(log_probs + F.log_softmax(logit_pi, dim=1), dim=1)
 
     def mid(self, params: torch.Tensor) -> torch.Tensor:
-        """The most probable component's mean, snapped: uint8 (B, H, W)."""
-        logit_pi, mu, _ = self._split(params)
+        """The most probable component's mean, snapped: uint8 (B, H, W); `params` may stop after the means."""
+        logit_pi, mu = params[:, : self.n_mix], params[:, self.n_mix : 2 * self.n_mix]
+        if params.device.type == "cpu" and params.dtype == torch.float32:
+            out = np.empty((len(params), *params.shape[2:]), np.uint8)
+            _mid_into(np.ascontiguousarray(params.numpy()), self.n_mix, np.array(WORLD_VALUES, np.float32), out)
+            return torch.from_numpy(out)
         best = _channel_argmax(logit_pi).unsqueeze(1)
         return snap(mu.gather(1, best).squeeze(1).clamp(-1.0, 1.0))
 
@@ -102,7 +152,7 @@ class DMoL:
 class Categorical:
     """A softmax over the world's 7 pixel values."""
 
-    channels = len(WORLD_VALUES)
+    channels = mid_channels = len(WORLD_VALUES)
 
     def nll(self, logits: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
         return F.cross_entropy(logits, value_index(frames), reduction="none")
