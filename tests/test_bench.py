@@ -94,3 +94,16 @@ def test_bench_batched_times_greedy_and_sampled_grids_both_ways():
         ratio = figures["kernel_ms_per_grid"] / figures["batched_ms_per_grid"]
         assert figures["speedup_vs_kernel"] == pytest.approx(ratio, abs=0.02), name
         assert figures["occupancy_table"] == name.startswith("default_greedy")
+
+
+def test_bench_decoding_times_each_configurations_decoding_and_draw_against_its_plain_formulation():
+    from dynplan.bench.decoding import bench_decoding
+
+    results = bench_decoding(repeats=1)
+    assert set(results) == {"paper", "default"}
+    for name, figures in results.items():
+        assert figures["decode_ratio"] == pytest.approx(
+            figures["decode_plain_ms_per_frame"] / figures["decode_ms_per_frame"], rel=0.02
+        ), name
+        assert figures["draw_compiled_ms_per_position"] > 0 and figures["threads"] == 1
+    assert results["default"]["codes"] == 4096 and results["paper"]["codes"] == 512

@@ -12,9 +12,9 @@ from dynplan.data.patches import distinct_patches
 from dynplan.data.store import build_frame_store_from_logs, list_logs
 from dynplan.env import RoadConfig, generate_world
 from dynplan.models.checkpoint import CheckpointError, load_vqvae_checkpoint
-from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, to_unit, value_index
+from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, snap_tensor, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
-from dynplan.models.vqvae import PRESETS, SHARPNESS_GRID, VQVAE, VQVAEConfig
+from dynplan.models.vqvae import DECODE_ROWS, PRESETS, SHARPNESS_GRID, VQVAE, VQVAEConfig
 from dynplan.training.vqvae import TrainBudget, content_sample, train_vqvae
 
 TINY = VQVAEConfig(name="tiny", channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16, n_mixtures=3,
@@ -100,6 +100,43 @@ def test_likelihoods_score_the_truth_best():
     assert torch.equal(dmol.mid(params), frames)
     logits = torch.nn.functional.one_hot(value_index(frames), 7).permute(0, 3, 1, 2).float() * 10
     assert torch.equal(Categorical().mid(logits), frames)
+
+
+def test_compiled_snap_and_mid_point_equal_their_tensor_formulas():
+    """`snap` and `DMoL.mid` run as one compiled pass on the CPU: the same float32 arithmetic as the tensor formulas
+    (nearest world value of (u + 1) · 127.5, the first of two equally near; the first most probable component)."""
+    values = torch.tensor(WORLD_VALUES, dtype=torch.float32)
+    unit = torch.rand(200_000, generator=torch.Generator().manual_seed(0)) * 2.2 - 1.1
+    edges = (values[1:] + values[:-1]) / 2 / 127.5 - 1.0  # half-way between two values, and the floats beside it
+    unit[: 3 * len(edges)] = torch.cat(
+        [edges, torch.nextafter(edges, values[-1:]), torch.nextafter(edges, -values[-1:])]
+    )
+    assert torch.equal(snap(unit.reshape(400, 500)), snap_tensor(unit).reshape(400, 500))
+    dmol = DMoL(n_mix=4)
+    params = torch.randn(6, 12, 5, 7, generator=torch.Generator().manual_seed(1))
+    params[:, :4] = params[:, :4].round()  # ties between components: the first wins
+    logit_pi, mu = params[:, :4], params[:, 4:8]
+    want = snap_tensor(mu.gather(1, logit_pi.argmax(1, keepdim=True)).squeeze(1).clamp(-1.0, 1.0))
+    assert torch.equal(dmol.mid(params), want) and torch.equal(dmol.mid(params[:, :8]), want)
+    assert torch.equal(dmol.mid_tensor(params), want)
+
+
+def test_decoding_in_blocks_and_only_the_mid_points_channels_gives_the_whole_decoders_numbers():
+    """On one thread, as the world model decodes (`world_model.one_thread`: on two, a convolution over an odd batch
+    splits its sums otherwise), a frame's numbers do not depend on the frames decoded with it."""
+    from dynplan.models.world_model import one_thread
+
+    model = VQVAE(PRESETS["paper"]).eval()
+    codes = torch.randint(
+        0, PRESETS["paper"].codebook_size, (DECODE_ROWS * 2 + 3, 6, 6), generator=torch.Generator().manual_seed(2)
+    )
+    with torch.inference_mode(), one_thread():
+        whole = model.decoder(model.quantizer.lookup(codes.unsqueeze(-1)))
+        assert torch.equal(model.decode_params(codes), whole)
+        ones = torch.cat([model.decoder(model.quantizer.lookup(codes[i : i + 1].unsqueeze(-1))) for i in range(7)])
+        assert torch.equal(ones, whole[:7])
+        assert torch.equal(model.decode_params(codes, model.pixel.mid_channels), whole[:, : model.pixel.mid_channels])
+        assert torch.equal(torch.from_numpy(model.decode(codes.numpy())), model.pixel.mid(whole))
 
 
 @pytest.mark.parametrize("likelihood", [Categorical(), DMoL(n_mix=3)])

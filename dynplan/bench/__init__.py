@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from dynplan.bench.data import bench_data
 from dynplan.bench.decision import bench_decision
+from dynplan.bench.decoding import bench_decoding
 from dynplan.bench.evaluation import bench_evaluation
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
@@ -30,6 +31,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "vqvae": bench_vqvae,
     "prior": bench_prior,
     "generation": bench_generation,
+    "decoding": bench_decoding,
     "decision": bench_decision,
     "evaluation": bench_evaluation,
     "sharing": bench_sharing,

@@ -34,12 +34,18 @@ def value_index(frames: torch.Tensor) -> torch.Tensor:
 
 
 def snap(unit: torch.Tensor) -> torch.Tensor:
-    """Values in [−1, 1] → uint8 frames on the nearest world value (the first of two equally near)."""
-    values = torch.tensor(WORLD_VALUES, dtype=torch.float32, device=unit.device)
+    """Values in [−1, 1] → uint8 frames on the nearest world value (the first of two equally near): one compiled
+    pass on the CPU, `snap_tensor`'s numbers elsewhere."""
     if unit.device.type == "cpu" and unit.dtype == torch.float32:
         out = np.empty(unit.shape, np.uint8)
-        _snap_into(np.ascontiguousarray(unit.numpy()).reshape(-1), values.numpy(), out.reshape(-1))
+        _snap_into(np.ascontiguousarray(unit.numpy()).reshape(-1), np.array(WORLD_VALUES, np.float32), out.reshape(-1))
         return torch.from_numpy(out)
+    return snap_tensor(unit)
+
+
+def snap_tensor(unit: torch.Tensor) -> torch.Tensor:
+    """`snap` as tensor operations (any device): argmin over the values of |(u + 1) · 127.5 − value|."""
+    values = torch.tensor(WORLD_VALUES, dtype=torch.float32, device=unit.device)
     nearest = ((unit.unsqueeze(-1) + 1.0) * 127.5 - values).abs().argmin(-1)
     return values[nearest].to(torch.uint8)
 
@@ -117,13 +123,17 @@ class DMoL:
 
     def mid(self, params: torch.Tensor) -> torch.Tensor:
         """The most probable component's mean, snapped: uint8 (B, H, W); `params` may stop after the means."""
-        logit_pi, mu = params[:, : self.n_mix], params[:, self.n_mix : 2 * self.n_mix]
-        if params.device.type == "cpu" and params.dtype == torch.float32:
+        if params.device.type == "cpu" and params.dtype == torch.float32:  # one compiled pass
             out = np.empty((len(params), *params.shape[2:]), np.uint8)
             _mid_into(np.ascontiguousarray(params.numpy()), self.n_mix, np.array(WORLD_VALUES, np.float32), out)
             return torch.from_numpy(out)
+        return self.mid_tensor(params)
+
+    def mid_tensor(self, params: torch.Tensor) -> torch.Tensor:
+        """`mid` as tensor operations (any device)."""
+        logit_pi, mu = params[:, : self.n_mix], params[:, self.n_mix : 2 * self.n_mix]
         best = _channel_argmax(logit_pi).unsqueeze(1)
-        return snap(mu.gather(1, best).squeeze(1).clamp(-1.0, 1.0))
+        return snap_tensor(mu.gather(1, best).squeeze(1).clamp(-1.0, 1.0))
 
     def noise(self, shape: torch.Size, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, ...]:
         """The uniform numbers n samples of params of `shape` (B, 3·n_mix, H, W) use: per sample, one per component

@@ -25,7 +25,8 @@ import hashlib
 import os
 import weakref
 from collections import OrderedDict
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,18 @@ _LAYOUTS: weakref.WeakKeyDictionary[ConditionalPixelCNN, dict] = weakref.WeakKey
 #: `context` per episode at each step, and an evaluation's cases replay the same recorded worlds.
 ENCODED_FRAMES = 4096
 _ENCODED: weakref.WeakKeyDictionary[VQVAE, OrderedDict] = weakref.WeakKeyDictionary()
+
+
+@contextmanager
+def one_thread() -> Iterator[None]:
+    """Within the block torch runs on one thread: the same sums whatever the caller's threads and batch, so a result
+    replays exactly (on two threads a convolution over an odd batch of frames splits its sums otherwise)."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 def _frozen(prior: ConditionalPixelCNN, layout: str) -> KernelWeights | BatchedWeights:
@@ -178,7 +191,8 @@ class LearnedWorldModel:
         missing = list(dict.fromkeys(key for key in keys if key not in known))
         if missing:
             rows = {key: i for i, key in enumerate(keys)}
-            codes = self.tokenizer.encode(torch.from_numpy(np.stack([frames[rows[key]] for key in missing])))
+            with one_thread():
+                codes = self.tokenizer.encode(torch.from_numpy(np.stack([frames[rows[key]] for key in missing])))
             known.update(zip(missing, codes, strict=True))
         grids = torch.stack([known[key] for key in keys])
         for key in keys:
@@ -284,7 +298,8 @@ class LearnedWorldModel:
         unique = context[firsts]
         greedy, probability = first._chain(unique, lengths, occupancy=any(m.occupancy for m in models))
         starts = np.cumsum([0, *lengths])
-        params = tokenizer.decode_params(torch.cat([greedy[u, :n] for u, n in enumerate(lengths)]))
+        with one_thread():
+            params = tokenizer.decode_params(torch.cat([greedy[u, :n] for u, n in enumerate(lengths)]))
         mid = tokenizer.pixel.mid(params).numpy()
         frames_of = [np.arange(starts[u], starts[u] + k) for u, k in zip(which, ks, strict=True)]
         others: list[list[np.ndarray]] = [[] for _ in range(E)]
@@ -330,8 +345,9 @@ class LearnedWorldModel:
             ]  # one stream per future: fewer are a prefix
             context_rows = torch.tensor([u for (u, _), _ in entries]).repeat_interleave(count)
             sampled, _ = first._chain(unique[context_rows], np.repeat([n for _, n in entries], count), 1.0, streams)
-            decoded = tokenizer.decode(torch.cat([sampled[j * count : (j + 1) * count, :n].flatten(0, 1)
-                                                  for j, (_, n) in enumerate(entries)])).numpy()  # fmt: skip
+            with one_thread():
+                decoded = tokenizer.decode(torch.cat([sampled[j * count : (j + 1) * count, :n].flatten(0, 1)
+                                                      for j, (_, n) in enumerate(entries)])).numpy()  # fmt: skip
             offsets = np.cumsum([0, *(count * n for _, n in entries)])
             futures = {key: decoded[offsets[j] : offsets[j + 1]].reshape(count, n, *mid.shape[1:])
                        for j, (key, n) in enumerate(entries)}  # fmt: skip
@@ -357,13 +373,9 @@ class LearnedWorldModel:
         windows = torch.cat([context, grids]).unfold(0, self.context, 1)[: len(grids)]  # (k, h, w, c)
         k, h, w = grids.shape
         ph, pw = self.tokenizer.patch
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)  # the same sums whatever the caller's threads: a result replays exactly
-        try:
+        with one_thread():
             logits = self.prior.teacher_forced_logits(windows.permute(0, 3, 1, 2), grids)  # (k, h, w, K)
             patches = (torch.softmax(logits, dim=-1) @ self.code_obstacles()).reshape(k, h, w, ph, pw)
-        finally:
-            torch.set_num_threads(threads)
         return patches.permute(0, 1, 3, 2, 4).reshape(k, h * ph, w * pw).numpy()
 
 
