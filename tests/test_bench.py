@@ -96,7 +96,7 @@ def test_bench_batched_times_greedy_and_sampled_grids_both_ways():
         assert figures["occupancy_table"] == name.startswith("default_greedy")
 
 
-def test_bench_decoding_times_each_configurations_decoding_and_draw_against_its_plain_formulation():
+def test_bench_decoding_times_each_configurations_decoding_draw_and_samples_against_their_plain_formulations():
     from dynplan.bench.decoding import bench_decoding
 
     results = bench_decoding(repeats=1)
@@ -107,3 +107,8 @@ def test_bench_decoding_times_each_configurations_decoding_and_draw_against_its_
         ), name
         assert figures["draw_compiled_ms_per_position"] > 0 and figures["threads"] == 1
     assert results["default"]["codes"] == 4096 and results["paper"]["codes"] == 512
+    paper = results["paper"]  # a DMoL decoder: its samples in blocks against the whole batch's
+    assert paper["samples_ratio"] == pytest.approx(
+        paper["5_samples_whole_ms_per_frame"] / paper["5_samples_blocked_ms_per_frame"], rel=0.02
+    )
+    assert "samples_ratio" not in results["default"]

@@ -154,6 +154,16 @@ def test_decoder_samples_follow_the_likelihood_and_many_at_once_are_many_one_at_
     assert set(many.unique().tolist()) <= set(WORLD_VALUES)
 
 
+@pytest.mark.parametrize(("frames", "samples", "size"), [(3, 5, (5, 7)), (7, 10, (48, 48)), (1, 1, (1, 1))])
+def test_decoder_samples_in_blocks_are_the_whole_batchs_numbers(frames, samples, size):
+    """`DMoL.sample_with` draws `SAMPLE_ROWS` (sample, frame) pairs at a time, in place; `sample_tensor` the whole
+    batch at once: the same numbers, whatever the shape (odd sizes leave a block's last elements to scalar code)."""
+    likelihood, generator = DMoL(n_mix=10), torch.Generator().manual_seed(frames)
+    params = torch.randn(frames, likelihood.channels, *size, generator=generator) * 3
+    noise = likelihood.noise(params.shape, samples, generator)
+    assert torch.equal(likelihood.sample_with(params, noise), likelihood.sample_tensor(params, noise))
+
+
 def test_ema_quantizer_learns_and_restarts_dead_codes():
     torch.manual_seed(0)
     vq = VectorQuantizer(8, 2, ema=True, restart_dead=True).train()

@@ -5,6 +5,8 @@ sampled codes, each against its plain formulation in the same process, on one th
   decoder's last layer computing only the channels a mid-point reads, the mid-point and snapping compiled) against
   the whole batch through the decoder at once with the mid-point and snapping as tensor operations
   (`mid_tensor`); and mid-point + 5 decoder samples from one pass of the decoder, as the greedy future is decoded.
+* `samples` (a DMoL decoder's): the decoder samples of those frames drawn a few (sample, frame) pairs at a time in
+  place (`DMoL.sample_with`) against the whole batch's noise at once (`DMoL.sample_tensor`).
 * `draw`: one position's codes for a block of rows drawn by inverse transform of the float64 softmax over the
   codebook — the compiled draw the kernel and the CPU's batched generation share (`generation.draw_rows`) against
   the same rule as tensor operations (`batched._pick`, what a GPU runs).
@@ -48,6 +50,17 @@ def _bench_configuration(name: str, repeats: int, samples: int, generator: torch
         return tokenizer.pixel.sample_with(params, tokenizer.pixel.noise(params.shape, samples, generator))
 
     sampled = median_seconds(with_samples, repeats) * 1e3 / FRAMES
+    blocks = {}
+    if hasattr(tokenizer.pixel, "sample_tensor"):  # a decoder whose samples are drawn in blocks
+        params = tokenizer.decode_params(codes)
+        noise = tokenizer.pixel.noise(params.shape, samples, generator)
+        if not torch.equal(tokenizer.pixel.sample_with(params, noise), tokenizer.pixel.sample_tensor(params, noise)):
+            raise AssertionError(f"{name}: the decoder samples in blocks and the whole batch's disagree")
+        whole = median_seconds(lambda: tokenizer.pixel.sample_tensor(params, noise), repeats) * 1e3 / FRAMES
+        blocked = median_seconds(lambda: tokenizer.pixel.sample_with(params, noise), repeats) * 1e3 / FRAMES
+        blocks = {f"{samples}_samples_whole_ms_per_frame": round(whole, 3),
+                  f"{samples}_samples_blocked_ms_per_frame": round(blocked, 3),
+                  "samples_ratio": round(whole / blocked, 2)}  # fmt: skip
     logits = torch.randn(BLOCK_ROWS, K, generator=generator) * 3.0
     uniforms = torch.rand(BLOCK_ROWS, generator=generator, dtype=torch.float64)
     work, cdf = torch.empty(BLOCK_ROWS, K, dtype=torch.float64), torch.empty(BLOCK_ROWS, K, dtype=torch.float64)
@@ -66,6 +79,7 @@ def _bench_configuration(name: str, repeats: int, samples: int, generator: torch
         "decode_ms_per_frame": round(fast, 3),
         "decode_ratio": round(plain / fast, 2),
         f"decode_with_{samples}_samples_ms_per_frame": round(sampled, 3),
+        **blocks,
         "draw_tensor_ms_per_position": round(tensor_draw, 3),
         "draw_compiled_ms_per_position": round(compiled_draw, 3),
         "draw_ratio": round(tensor_draw / compiled_draw, 2),
