@@ -128,3 +128,18 @@ def test_replaying_committed_rows_reproduces_their_outcomes(tmp_path):
                 "world_model_sha256"
             )
             assert (again["outcome"], again["steps"]) == (row["outcome"], row["steps"]), (technique, model, k, seed)
+
+
+@pytest.mark.parametrize("record", sorted((ROOT / "datasets" / "training").glob("*/provenance.json")),
+                         ids=lambda p: p.parent.name)  # fmt: skip
+def test_candidate_records_describe_their_weights(record):
+    """A candidate prior's record (docs/design.md §3.3) names its weights by hash, and its config and last epoch
+    are the exported checkpoint's and its metrics'."""
+    info, folder = json.loads(record.read_text()), record.parent
+    data = (folder / info["weights"]).read_bytes()
+    assert info["sha256"] == hashlib.sha256(data).hexdigest()
+    checkpoint = torch.load(folder / info["weights"], map_location="cpu", weights_only=False)
+    assert checkpoint["kind"] == info["stage"]
+    assert checkpoint["config"] == json.loads((folder / "config.json").read_text())
+    last = (folder / "metrics.csv").read_text().strip().splitlines()[-1].split(",")
+    assert (int(last[0]), int(last[1])) == (info["epochs"], info["windows_seen"])
