@@ -5,6 +5,7 @@ clone has nothing else), every run's manifest must describe its rows, the evalua
 the committed weights, and each model card must describe the weights beside it."""
 
 import hashlib
+import io
 import json
 from pathlib import Path
 
@@ -138,7 +139,7 @@ def test_candidate_records_describe_their_weights(record):
     info, folder = json.loads(record.read_text()), record.parent
     data = (folder / info["weights"]).read_bytes()
     assert info["sha256"] == hashlib.sha256(data).hexdigest()
-    checkpoint = torch.load(folder / info["weights"], map_location="cpu", weights_only=False)
+    checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
     assert checkpoint["kind"] == info["stage"]
     assert checkpoint["config"] == json.loads((folder / "config.json").read_text())
     last = (folder / "metrics.csv").read_text().strip().splitlines()[-1].split(",")
