@@ -46,7 +46,7 @@ from dynplan.evaluation.table import aggregate, load_results, render_markdown, w
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
-from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
 from dynplan.models.world_model import check_device, world_model_parts, world_model_paths
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
@@ -217,6 +217,13 @@ def main(argv: list[str] | None = None) -> list[dict]:
         for model in args.models:
             if not world_model_spec(model).tokenizer.local:
                 parser.error(f"--occupancy needs patch-local codes; the {model} configuration's tokenizer has none")
+    marginal = [t for t in args.techniques if TECHNIQUES[t].marginal]
+    for model in args.models if marginal else ():
+        if not world_model_spec(model).tokenizer.local:
+            parser.error(f"{marginal[0]} needs patch-local codes; the {model} configuration's tokenizer has none")
+        if not caution_for(model, overrides).occupancy:
+            parser.error(f"{marginal[0]} thresholds its futures' obstacle probability at the occupancy, which is off "
+                         f"for the {model} configuration; give --occupancy in (0, 1)")  # fmt: skip
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     if not 1 <= args.batch <= 10_000:

@@ -295,6 +295,8 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
             "Caution: margin=5 is invalid (input should be less than or equal to 4); valid range [0, 4]",
         ),
         (["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"], "--occupancy needs patch-local codes"),
+        (["--techniques", "marginal8", "--models", "paper"], "marginal8 needs patch-local codes"),
+        (["--techniques", "marginal8", "--occupancy", "0"], "which is off for the default configuration"),
         (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --run"),
         (["--run", "../x"], "--run: run name '../x' is invalid"),
         (["--first-seed", "-1"], "seed"),

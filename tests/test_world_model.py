@@ -12,7 +12,13 @@ from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
 from dynplan.models.registry import WORLD_MODELS, caution_for
 from dynplan.models.vqvae import VQVAE, VQVAEConfig
-from dynplan.models.world_model import LearnedWorldModel, load_world_model, merge_samples, widen_obstacles
+from dynplan.models.world_model import (
+    LearnedWorldModel,
+    load_world_model,
+    merge_samples,
+    observation_stream,
+    widen_obstacles,
+)
 from dynplan.planning.episode import run_episode
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
 
@@ -114,6 +120,41 @@ def test_occupancy_is_the_priors_obstacle_probability_along_the_greedy_future(ti
     occupied_obstacle = (occupied != 0) & (occupied != GOAL_VALUE)
     assert occupied_obstacle[obstacle].all() and occupied_obstacle[unsure].all()  # the greedy's and the unsure
     assert not (occupied_obstacle & ~obstacle & ~unsure).any()  # and nothing else
+
+
+def test_the_futures_marginal_is_their_mean_obstacle_probability_over_the_greedy_frames(tiny_local_model):
+    tokenizer, prior = tiny_local_model
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    probe = LearnedWorldModel(tokenizer, prior)
+    context = probe.encode_context(frames)[None]
+    streams = [(observation_stream(3, context[0].numpy().tobytes(), "futures", j), 1) for j in range(4)]
+    _, chance = probe._chain(context.expand(4, -1, -1, -1), [3] * 4, 1.0, streams, occupancy=True)
+    mean = chance.mean(axis=0)  # the futures' own draws, by hand: what the model's stream gives them
+    greedy = probe.predict(frames, 3).frames
+    obstacle = (greedy != 0) & (greedy != GOAL_VALUE)
+    threshold = float(np.median(mean[~obstacle]))  # untrained weights: one that splits the greedy's free pixels
+    assert (~obstacle & (mean >= threshold)).any() and (~obstacle & (mean < threshold)).any()
+    model = LearnedWorldModel(tokenizer, prior, futures=4, seed=3, occupancy=threshold, marginal=True)
+    assert model.name == f"model(samples=0, futures=4, marginal=True, occupancy={threshold})"
+    seen = model.predict(frames, 3).frames
+    seen_obstacle = (seen != 0) & (seen != GOAL_VALUE)
+    np.testing.assert_array_equal(seen_obstacle, obstacle | (mean >= threshold))  # and no future's frames
+    assert (seen[obstacle] >= greedy[obstacle]).all()  # conservative: the larger obstacle value where both show one
+    # Fewer futures are a prefix of more, whether alone or batched with models of other merges and horizons.
+    two = dict(futures=2, seed=3, occupancy=threshold, marginal=True)
+    alone = LearnedWorldModel(tokenizer, prior, **two).predict(frames, 2).frames
+    expected = obstacle[:2] | (chance[:2, :2].mean(axis=0) >= threshold)
+    np.testing.assert_array_equal((alone != 0) & (alone != GOAL_VALUE), expected)
+    union = LearnedWorldModel(tokenizer, prior, futures=4, seed=3)
+    batched = LearnedWorldModel.predict_batch(
+        [LearnedWorldModel(tokenizer, prior, **two), model, union], [frames] * 3, [2, 3, 3]
+    )
+    np.testing.assert_array_equal(batched[0].frames, alone)
+    np.testing.assert_array_equal(batched[1].frames, seen)
+    np.testing.assert_array_equal(batched[2].frames, union.predict(frames, 3).frames)
+    for bad in (dict(futures=0, occupancy=0.1), dict(futures=4, occupancy=0.0)):
+        with pytest.raises(ValueError, match="marginal .* needs futures >= 1 and occupancy > 0"):
+            LearnedWorldModel(tokenizer, prior, marginal=True, **bad)
 
 
 def test_occupancy_names_its_range_and_needs_patch_local_codes(tiny_model, tiny_local_model):

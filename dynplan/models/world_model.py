@@ -10,13 +10,15 @@ the context), and decodes the k grids. Variants of the paper's Table 1:
 
 Code grids are chosen greedily (argmax) as in the reference. Beyond the paper, `futures = N` also samples N
 stochastic futures from the prior itself (codes drawn at temperature 1) and merges their decoded frames with
-the greedy one the same way as decoder samples; `occupancy = p` also marks as obstacles the pixels that the
-prior gives a probability of at least p of holding one, along the greedy future (the prior's own uncertainty
-where the argmax hides it: when an obstacle's next position is split over several codes, the argmax can be the
-empty patch). It needs patch-local codes, each decoding to its own patch. `margin = m` widens every predicted
-obstacle by m pixels along its lane (a row), both ways: the prior places a slow obstacle's sub-pixel phase a pixel
-off often enough that its neighbours are worth avoiding. Each configuration has its own caution (its registry entry),
-chosen on validation episodes.
+the greedy one the same way as decoder samples — or, with `marginal`, through their obstacle probabilities: the
+pixels whose probability averaged over the futures (an estimate of the prior's marginal, not its greedy path's)
+reaches the occupancy threshold join the greedy frames, and the futures' own frames do not. `occupancy = p`
+alone marks as obstacles the pixels that the prior gives a probability of at least p of holding one, along the
+greedy future (the prior's own uncertainty where the argmax hides it: when an obstacle's next position is split
+over several codes, the argmax can be the empty patch). It needs patch-local codes, each decoding to its own
+patch. `margin = m` widens every predicted obstacle by m pixels along its lane (a row), both ways: the prior
+places a slow obstacle's sub-pixel phase a pixel off often enough that its neighbours are worth avoiding. Each
+configuration has its own caution (its registry entry), chosen on validation episodes.
 """
 
 from __future__ import annotations
@@ -144,7 +146,8 @@ class LearnedWorldModel:
     when `device` is not the CPU)."""
 
     def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, futures: int = 0,
-                 seed: int = 0, occupancy: float = 0.0, margin: int = 0, device: str = "cpu"):  # fmt: skip
+                 seed: int = 0, occupancy: float = 0.0, margin: int = 0, device: str = "cpu",
+                 marginal: bool = False):  # fmt: skip
         if tokenizer.config.codebook_size != prior.config.codebook_size:
             raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
                              f"{tokenizer.config.codebook_size}")  # fmt: skip
@@ -154,14 +157,17 @@ class LearnedWorldModel:
         if occupancy and not (tokenizer.config.local and tokenizer.config.n_codebooks == 1):
             raise ValueError("occupancy needs a tokenizer with patch-local codes (local=True, n_codebooks=1), "
                              f"got {tokenizer.config.name!r}")  # fmt: skip
+        if marginal and not (futures and occupancy):
+            raise ValueError("marginal merges sampled futures through their mean obstacle probability at the "
+                             f"occupancy threshold: it needs futures >= 1 and occupancy > 0, got futures={futures}, "
+                             f"occupancy={occupancy}")  # fmt: skip
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
         self.samples, self.futures, self.occupancy, self.margin = samples, futures, occupancy, margin
-        self.seed = seed
+        self.marginal, self.seed = marginal, seed
         self.generator = torch.Generator().manual_seed(seed)  # `predict_codes`' sampled futures
-        caution = {"occupancy": occupancy, "margin": margin}
-        self.name = (
-            f"model(samples={samples}, futures={futures}" + "".join(f", {k}={v}" for k, v in caution.items() if v) + ")"
-        )
+        settings = {"marginal": marginal, "occupancy": occupancy, "margin": margin}
+        shown = "".join(f", {key}={value}" for key, value in settings.items() if value)
+        self.name = f"model(samples={samples}, futures={futures}{shown})"
         self.context = prior.config.context
         self.device = check_device(device)
         self._code_obstacles: torch.Tensor | None = None
@@ -296,7 +302,8 @@ class LearnedWorldModel:
         lengths = np.zeros(len(index), np.int64)
         np.maximum.at(lengths, which, ks)
         unique = context[firsts]
-        greedy, probability = first._chain(unique, lengths, occupancy=any(m.occupancy for m in models))
+        greedy, probability = first._chain(unique, lengths, occupancy=any(m.occupancy and not m.marginal
+                                                                           for m in models))  # fmt: skip
         starts = np.cumsum([0, *lengths])
         with one_thread():
             params = tokenizer.decode_params(torch.cat([greedy[u, :n] for u, n in enumerate(lengths)]))
@@ -326,7 +333,7 @@ class LearnedWorldModel:
             for e in members:
                 others[e].append(drawn[key][: models[e].samples, : ks[e]])
         for e, model in enumerate(models):
-            if model.occupancy:
+            if model.occupancy and not model.marginal:
                 unsure = probability[which[e], : ks[e]] >= model.occupancy
                 others[e].append(np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)[None])
         dreamers: dict[tuple[int, int], list[int]] = {}  # (distinct observation, model seed) → the models with futures
@@ -344,16 +351,26 @@ class LearnedWorldModel:
                 for j in range(count)
             ]  # one stream per future: fewer are a prefix
             context_rows = torch.tensor([u for (u, _), _ in entries]).repeat_interleave(count)
-            sampled, _ = first._chain(unique[context_rows], np.repeat([n for _, n in entries], count), 1.0, streams)
-            with one_thread():
-                decoded = tokenizer.decode(torch.cat([sampled[j * count : (j + 1) * count, :n].flatten(0, 1)
-                                                      for j, (_, n) in enumerate(entries)])).numpy()  # fmt: skip
-            offsets = np.cumsum([0, *(count * n for _, n in entries)])
-            futures = {key: decoded[offsets[j] : offsets[j + 1]].reshape(count, n, *mid.shape[1:])
-                       for j, (key, n) in enumerate(entries)}  # fmt: skip
-            for key, _ in entries:
+            members = [e for key, _ in entries for e in dreamers[key]]
+            sampled, chance = first._chain(unique[context_rows], np.repeat([n for _, n in entries], count), 1.0,
+                                           streams, occupancy=any(models[e].marginal for e in members))  # fmt: skip
+            futures = {}
+            if not all(models[e].marginal for e in members):  # some merge the futures' frames: decode them
+                with one_thread():
+                    decoded = tokenizer.decode(torch.cat([sampled[j * count : (j + 1) * count, :n].flatten(0, 1)
+                                                          for j, (_, n) in enumerate(entries)])).numpy()  # fmt: skip
+                offsets = np.cumsum([0, *(count * n for _, n in entries)])
+                futures = {key: decoded[offsets[j] : offsets[j + 1]].reshape(count, n, *mid.shape[1:])
+                           for j, (key, n) in enumerate(entries)}  # fmt: skip
+            for j, (key, _) in enumerate(entries):
                 for e in dreamers[key]:
-                    others[e].append(futures[key][: models[e].futures, : ks[e]])
+                    model = models[e]
+                    if model.marginal:  # the mean over this model's futures (a prefix of the group's)
+                        marginal = chance[j * count : j * count + model.futures, : ks[e]].mean(axis=0)
+                        unsure = np.where(marginal >= model.occupancy, UNSURE_OBSTACLE, FREE).astype(np.uint8)
+                        others[e].append(unsure[None])
+                    else:
+                        others[e].append(futures[key][: model.futures, : ks[e]])
         predictions = []
         for e, model in enumerate(models):
             frames = mid[frames_of[e]]
@@ -405,8 +422,8 @@ def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple
 
 
 def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0, futures: int = 0,
-                     seed: int = 0, caution: Mapping[str, float] | None = None,
-                     device: str = "cpu") -> LearnedWorldModel:  # fmt: skip
+                     seed: int = 0, caution: Mapping[str, float] | None = None, device: str = "cpu",
+                     marginal: bool = False) -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
     pretrained checkpoints of the configuration `model` ("default" or "paper"), with the configuration's own
     caution (its registry entry) except where `caution` (field → value) overrides it. Weights are loaded once per
@@ -414,4 +431,4 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
     paths = world_model_paths(model) if path is None else (Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt")
     tokenizer, prior = world_model_parts(paths, model)
     return LearnedWorldModel(tokenizer, prior, samples, futures, seed, **caution_for(model, caution).model_dump(),
-                             device=device)  # fmt: skip
+                             device=device, marginal=marginal)  # fmt: skip

@@ -69,27 +69,28 @@ def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int,
     drawn = manifest.exists() and json.loads(manifest.read_text()).get("identity") == identity
     if drawn and all((out / n).exists() for n in names.values()):
         return names
-    samples, futures = find_technique(technique).samples, find_technique(technique).futures
+    chosen = find_technique(technique)
+    samples, futures, marginal = chosen.samples, chosen.futures, chosen.marginal
     curves = {}
     for model, folder in models.items():
         curves[f"{model}, {technique}"] = errors_by_horizon(
-            load_world_model(folder, model=model, samples=samples, futures=futures), episodes
+            load_world_model(folder, model=model, samples=samples, futures=futures, marginal=marginal), episodes
         )
     with atomic_path(out / names["errors"], keep_suffix=True) as tmp:
         plot_errors(curves, tmp)
     first, folder = next(iter(models.items()))
     with atomic_path(out / names["figure1"], keep_suffix=True) as tmp:
-        figure1(load_world_model(folder, model=first, samples=samples, futures=futures), tmp, seed=seed)
+        figure1(
+            load_world_model(folder, model=first, samples=samples, futures=futures, marginal=marginal), tmp, seed=seed
+        )
     log = log_path(eval_logs, seed)
     replay(
         log,
-        planner="model",
+        planner=technique,
         agent_speed=1.0,
         rollout_steps=rollout_steps,
         gif=out / names["gif"],
         model=first,
-        samples=samples,
-        futures=futures,
         model_dir=str(folder.parent),
     )  # write_gif is atomic itself
     write_bytes_atomic(manifest, json.dumps({"identity": identity, "curves": curves}, indent=1).encode())
