@@ -1,11 +1,16 @@
 """The floor of what can be predicted, and a model's misses by cause."""
 
+from dataclasses import replace
+
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from dynplan.analysis.context_bound import ContextBoundModel
 from dynplan.analysis.prediction import errors_by_horizon, foreseeable_frames, miss_causes
 from dynplan.env import RoadConfig, generate_world
+from dynplan.env.road import round_px
 from dynplan.models.metrics import frame_errors
 from dynplan.planning.forward import ZeroModel
 
@@ -51,3 +56,44 @@ def test_an_empty_road_misses_the_floor_as_unforeseeable_and_the_rest_as_lost():
     np.testing.assert_allclose(unforeseeable, floor, atol=1e-5)
     np.testing.assert_allclose(lost, 1 - floor, atol=1e-5)
     assert curve["fn_displaced"] == [0.0] * 5 and floor[0] > 0 and floor[-1] > floor[0]
+
+
+def test_the_context_bound_falls_with_the_context_toward_the_floor():
+    curves = {n: errors_by_horizon(lambda world, n=n: ContextBoundModel(world, n), episodes=3, points=5, horizon=3)
+              for n in (1, 4, 16)}  # fmt: skip
+    fn = {n: np.array(curve["fn_rate"]) for n, curve in curves.items()}
+    floor = np.array(curves[1]["floor_fn_rate"])
+    assert (fn[1] > fn[4]).all() and (fn[4] > fn[16]).all() and (fn[16] >= floor - 1e-9).all()
+    assert (np.array(curves[16]["fn_unforeseeable"]) <= floor + 1e-9).all()  # it predicts only what is on the road
+    assert max(curves[4]["fp_rate"]) < 0.01  # one placement per obstacle, no spread
+
+
+def test_an_obstacle_tracked_long_enough_is_placed_where_it_is():
+    world = generate_world(RoadConfig(), 3)
+    t = 150
+    on_road, placed = ContextBoundModel(world, t + 1).placements(t, 1)
+    traffic = world.traffic
+    age = world.config.width + t + 1 - traffic.step[on_road]
+    truth = round_px(traffic.x_at_age(age, on_road))
+    assert len(on_road) > 5 and np.abs(placed[:, 0] - truth).max() <= 1 and (placed[:, 0] == truth).mean() >= 0.8
+    assert (ContextBoundModel(world, 1).placements(t, 1)[1][:, 0] != truth).any()  # one frame leaves speeds open
+
+
+def test_the_context_bound_refuses_what_it_cannot_bound():
+    world = generate_world(RoadConfig(), 3)
+    with pytest.raises(ValueError, match="context must be a whole number of frames >= 1, got 0"):
+        ContextBoundModel(world, 0)
+    with pytest.raises(ValueError, match="needs a generated world"):
+        ContextBoundModel(replace(world, traffic=None), 4)
+    with pytest.raises(ValueError, match=r"occupancy must be in \[0, 1\)"):
+        ContextBoundModel(world, 4, 1.0)
+
+
+def test_the_context_bounds_occupancy_buys_its_misses_back_with_few_false_positives():
+    def curve(occupancy):
+        return errors_by_horizon(lambda world: ContextBoundModel(world, 4, occupancy), episodes=3, points=5, horizon=3)
+
+    placed, covered = curve(0.0), curve(0.1)
+    assert (np.array(covered["fn_rate"]) < np.array(placed["fn_rate"])).all()
+    assert (np.array(covered["fp_rate"]) >= np.array(placed["fp_rate"])).all() and max(covered["fp_rate"]) < 0.02
+    np.testing.assert_allclose(covered["fn_rate"], covered["floor_fn_rate"], atol=0.01)  # at the floor, within a point

@@ -14,10 +14,12 @@ import json
 import os
 import shlex
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
+from dynplan.analysis.context_bound import ContextBoundModel
 from dynplan.env.config import FREE, GOAL_VALUE, RoadConfig
 from dynplan.env.road import World, generate_world, paint
 from dynplan.evaluation.cases import EVAL_SEED_START
@@ -64,11 +66,12 @@ def miss_causes(truth: np.ndarray, predicted: np.ndarray, foreseeable: np.ndarra
             "lost": float((missed & seen & ~near).sum() / total)}  # fmt: skip
 
 
-def errors_by_horizon(model: ForwardModel, episodes: int = 10, points: int = 10, horizon: int = HORIZON,
-                      first_seed: int = EVAL_SEED_START) -> dict:  # fmt: skip
+def errors_by_horizon(model: ForwardModel | Callable[[World], ForwardModel], episodes: int = 10, points: int = 10,
+                      horizon: int = HORIZON, first_seed: int = EVAL_SEED_START) -> dict:  # fmt: skip
     """Mean false-negative and false-positive rates and goal error (pixels) at each step ahead 1 … horizon, the
     floor of the false negatives (what no model of the past can foresee) and the false negatives by cause
-    (`miss_causes`), over `points` decision points of each of `episodes` episodes from seed `first_seed`."""
+    (`miss_causes`), over `points` decision points of each of `episodes` episodes from seed `first_seed`.
+    `model`: a forward model, or what builds one for each episode's world (the context bound)."""
     fn, fp, goal = (np.zeros(horizon) for _ in range(3))
     causes = {cause: np.zeros(horizon) for cause in ("floor", "unforeseeable", "displaced", "lost")}
     goal_counts = np.zeros(horizon)
@@ -76,8 +79,9 @@ def errors_by_horizon(model: ForwardModel, episodes: int = 10, points: int = 10,
     for e in range(episodes):
         world = generate_world(RoadConfig(), first_seed + e)
         frames = world.frames
+        predictor = model if hasattr(model, "predict") else model(world)
         for t in np.linspace(4, len(frames) - horizon - 1, points).astype(int):
-            predicted = model.predict(frames[: t + 1], horizon).frames
+            predicted = predictor.predict(frames[: t + 1], horizon).frames
             truth = frames[t + 1 : t + 1 + horizon]
             foreseeable = foreseeable_frames(world, int(t), horizon)
             for h in range(horizon):
@@ -182,10 +186,14 @@ def write_curves(path: str | os.PathLike, curves: dict, command: str) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS))
-    parser.add_argument("--samples", type=int, nargs="+", default=[0, 5], help="decoder samples (0: Mid)")
+    parser.add_argument("--samples", type=int, nargs="*", default=[0, 5],
+                        help="decoder samples (0: Mid; none given: no such variants)")  # fmt: skip
     parser.add_argument("--futures", type=int, nargs="*", default=[], help="also: code futures sampled from the prior")
     parser.add_argument("--marginal", type=int, nargs="*", default=[], help="also: code futures sampled from the "
                         "prior, merged through their mean obstacle probability at the occupancy threshold")  # fmt: skip
+    parser.add_argument("--context-bound", type=int, nargs="*", default=[], metavar="N",
+                        help="also: the context bound of N frames (each obstacle on the road placed where its "
+                        "rounded positions over the last N frames most probably put it), each --occupancy")  # fmt: skip
     parser.add_argument("--prior", help="a prior checkpoint to use instead of the committed one")
     parser.add_argument(
         "--occupancy",
@@ -216,13 +224,22 @@ def main(argv: list[str] | None = None) -> None:
             name = f"{args.model}, {variant}" + "".join(f", {key} {value:g}" for key, value in settings if value)
             curves[name] = errors_by_horizon(model, args.episodes, first_seed=args.first_seed)
             print(json.dumps({name: curves[name]}))
+    for context in args.context_bound:
+        for occupancy in sorted(set(args.occupancy or [0.0])):  # the bound has no margin
+
+            def bound(world: World, n: int = context, p: float = occupancy) -> ContextBoundModel:
+                return ContextBoundModel(world, n, p)
+
+            name = ContextBoundModel.label(context, occupancy)
+            curves[name] = errors_by_horizon(bound, args.episodes, first_seed=args.first_seed)
+            print(json.dumps({name: curves[name]}))
     if args.out:
         write_curves(args.out, curves, shlex.join(["python", "-m", "dynplan.analysis.prediction",
                                                    *(sys.argv[1:] if argv is None else argv)]))  # fmt: skip
     if args.plot:
         plot_errors(curves, args.plot)
     if args.figure:
-        figure1(world_model(args.model, max(args.samples), 0, args.prior, cautions[0]), args.figure)
+        figure1(world_model(args.model, max(args.samples, default=0), 0, args.prior, cautions[0]), args.figure)
 
 
 if __name__ == "__main__":

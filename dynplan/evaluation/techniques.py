@@ -108,13 +108,16 @@ for _t in (
     Technique("zero", "an empty road, goal unknown (a lower bound)", lambda i: ZeroModel()),
     Technique("random", "uniformly random actions, no search", lambda i: None, search=False),
     learned_technique("futures5", 0, 5, "learned model: 5 code futures sampled from the prior (beyond the paper)"),
-    learned_technique(
-        "marginal8",
-        0,
-        8,
-        "learned model: the pixels whose obstacle probability, averaged over 8 code "
-        "futures sampled from the prior, reaches the occupancy threshold (beyond the paper)",
-        True,
+    *(
+        learned_technique(
+            f"marginal{n}",
+            0,
+            n,
+            f"learned model: the pixels whose obstacle probability, averaged over {n} code "
+            "futures sampled from the prior, reaches the occupancy threshold (beyond the paper)",
+            True,
+        )
+        for n in (8, 16)
     ),
 ):
     register_technique(_t)

@@ -1,0 +1,120 @@
+"""The context bound: how well any point prediction from the last N frames can place the obstacles on the road.
+
+The floor (`dynplan.analysis.prediction.foreseeable_frames`) assumes the obstacles already on the road are
+known exactly. A model sees them only as pixels: an obstacle's left end is its continuous position rounded, so
+N frames leave its speed (one of its class's `SPEED_CHOICES`) and its sub-pixel phase (its age) uncertain — a
+0.2 px/step truck can sit still for all of four frames. `ContextBoundModel` keeps, for each obstacle on the road
+at the decision, every (speed, age) consistent with its rounded positions (and its absence before it entered)
+over the last N frames, and places it where most of them put it at each step ahead. It is told which pixels
+belong to which obstacle, so it bounds what a model of N frames can do with one future; the goal is drawn where
+it truly is (obstacle errors only).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dynplan.env.config import FREE
+from dynplan.env.road import Traffic, World, paint, round_px
+from dynplan.planning.forward import Prediction
+
+
+class ContextBoundModel:
+    """Each obstacle on the road at the decision placed by its most probable position given the last `context`
+    frames (uniform over its class's speeds and its age); obstacles that enter later are not predicted.
+    `occupancy` > 0 also draws every pixel that at least that share of its hypotheses cover: the fewest false
+    positives a view of N frames needs for its misses (as the world model's occupancy threshold does)."""
+
+    def __init__(self, world: World, context: int, occupancy: float = 0.0):
+        if world.traffic is None or world.layout is None:
+            raise ValueError("the context bound needs a generated world (its traffic table); this one was read back")
+        if not isinstance(context, int | np.integer) or context < 1:
+            raise ValueError(f"context must be a whole number of frames >= 1, got {context!r}")
+        if not 0.0 <= occupancy < 1.0:
+            raise ValueError(f"occupancy must be in [0, 1) (0: the most probable placement only), got {occupancy!r}")
+        self.world, self.context, self.occupancy = world, int(context), float(occupancy)
+        self.name = self.label(self.context, self.occupancy)
+        traffic, layout = world.traffic, world.layout
+        speeds = np.array([c.speeds for c in world.config.classes])
+        self._speeds = speeds[layout.cls[traffic.lane]]  # (N obstacles, SPEED_CHOICES)
+        width, longest = world.config.width, int(traffic.length.max(initial=1))
+        self._ages = np.arange(int(np.ceil((width + longest) / speeds.min())) + 2)
+
+    @staticmethod
+    def label(context: int, occupancy: float = 0.0) -> str:
+        """The bound's name in tables and figures."""
+        return f"context bound, {context} frame" + "s" * (context != 1) + f", occupancy {occupancy:g}" * (occupancy > 0)
+
+    def hypotheses(self, t: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For the obstacles on the road at frame t (their indices, O): which (speed, age at t) hypotheses their
+        rounded positions over the context allow ((O, S, A) bool) and each one's left end at t+1 … t+k."""
+        traffic, width = self.world.traffic, self.world.config.width
+        age_t = width + t - traffic.step
+        left_t = round_px(traffic.x_at_age(np.maximum(age_t, 0)))
+        on_road = np.flatnonzero((age_t >= 0) & (left_t > -traffic.length) & (left_t < width))
+        frames = np.arange(max(0, t - self.context + 1), t + 1)
+        back = t - frames  # (J,) steps before the decision
+        true_age = age_t[on_road, None] - back  # (O, J)
+        true_left = round_px(traffic.x_at_age(np.maximum(true_age, 0), on_road[:, None]))
+        sign = np.sign(traffic.velocity[on_road])[:, None, None]
+        x0 = traffic.x0[on_road, None, None]
+        speed = self._speeds[on_road][:, :, None]  # (O, S, 1)
+        ages = self._ages[None, None, :]  # age at the decision
+
+        def left(after: np.ndarray | int) -> np.ndarray:
+            return round_px(x0[..., None] + sign[..., None] * speed[..., None] * (ages[..., None] + after))
+
+        hyp_age = ages[..., None] - back  # (1, 1, A, J)
+        present = hyp_age >= 0
+        consistent = np.all(
+            (present == (true_age >= 0)[:, None, None, :]) & (~present | (left(-back) == true_left[:, None, None, :])),
+            axis=-1,
+        )  # (O, S, A)
+        return on_road, consistent, left(np.arange(1, k + 1))  # (O, S, A, k) left ends ahead
+
+    def placements(self, t: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(indices of the obstacles on the road at frame t, (len, k) their most probable left ends at t+1 … t+k)."""
+        return self._modes(*self.hypotheses(t, k))
+
+    @staticmethod
+    def _modes(on_road: np.ndarray, consistent: np.ndarray, ahead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        k = ahead.shape[-1]
+        placed = np.empty((len(on_road), k), dtype=np.int64)
+        for o in range(len(on_road)):
+            candidates = ahead[o][consistent[o]]  # (hypotheses, k)
+            for h in range(k):
+                values, counts = np.unique(candidates[:, h], return_counts=True)
+                placed[o, h] = values[np.argmax(counts)]
+        return on_road, placed
+
+    def predict(self, observed: np.ndarray, k: int) -> Prediction:
+        world, t = self.world, len(observed) - 1
+        config, layout, traffic = world.config, world.layout, world.traffic
+        goal = world.goal[t + 1 : t + 1 + k]
+        k = len(goal)
+        none = Traffic(*(getattr(traffic, name)[:0] for name in ("step", "lane", "x0", "velocity", "length", "value")))
+        frames = paint(config, layout, none, goal)  # the goal on an empty road
+        hypotheses = self.hypotheses(t, k)
+        on_road, placed = self._modes(*hypotheses)
+        for o, lefts in zip(on_road, placed, strict=True):
+            cols = lefts[:, None] + np.arange(traffic.length[o])
+            h, c = np.nonzero((cols >= 0) & (cols < config.width))
+            frames[h, layout.rows[traffic.lane[o]], cols[h, c]] = traffic.value[o]
+        if self.occupancy > 0:
+            self._draw_occupied(frames, *hypotheses)
+        return Prediction.from_frames(frames)
+
+    def _draw_occupied(self, frames: np.ndarray, on_road: np.ndarray, consistent: np.ndarray, ahead: np.ndarray):
+        """Draw, where the road is free, each pixel covered by at least `occupancy` of an obstacle's hypotheses."""
+        traffic, layout, width = self.world.traffic, self.world.layout, self.world.config.width
+        for o, index in enumerate(on_road):
+            length, row = int(traffic.length[index]), layout.rows[traffic.lane[index]]
+            candidates = ahead[o][consistent[o]]  # (hypotheses, k)
+            for h in range(len(frames)):
+                values, counts = np.unique(candidates[:, h], return_counts=True)
+                share = np.zeros(width)
+                for value, count in zip(values, counts, strict=True):
+                    share[max(value, 0) : max(value + length, 0)] += count / len(candidates)
+                cols = np.flatnonzero(share >= self.occupancy)
+                free = cols[frames[h, row, cols] == FREE]
+                frames[h, row, free] = traffic.value[index]
