@@ -27,7 +27,7 @@ COMMITTED_ROWS = {
     "validation_paper_margin3": 200, "candidate_paper_annealed": 1200, "candidate_paper_margin2": 500,
     "default_margin0": 1931, "default_epoch7": 1970, "validation_context8": 300, "validation_speed05": 400,
     "validation_speed05_context8": 400, "validation_context16": 300, "validation_speed05_context16": 400,
-    "validation_marginal8": 300, "validation_speed05_marginal8": 300,
+    "validation_marginal8": 300, "validation_speed05_marginal8": 300, "validation_speed05_marginal16": 200,
 }  # fmt: skip
 
 
