@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from dynplan.env.config import FREE
-from dynplan.env.road import Traffic, World, paint, round_px
+from dynplan.env.road import World, paint, round_px
 from dynplan.planning.forward import Prediction
 
 
@@ -74,47 +74,50 @@ class ContextBoundModel:
 
     def placements(self, t: int, k: int) -> tuple[np.ndarray, np.ndarray]:
         """(indices of the obstacles on the road at frame t, (len, k) their most probable left ends at t+1 … t+k)."""
-        return self._modes(*self.hypotheses(t, k))
+        on_road, consistent, ahead = self.hypotheses(t, k)
+        return on_road, self._modes(self._spreads(consistent, ahead))
 
     @staticmethod
-    def _modes(on_road: np.ndarray, consistent: np.ndarray, ahead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        k = ahead.shape[-1]
-        placed = np.empty((len(on_road), k), dtype=np.int64)
-        for o in range(len(on_road)):
+    def _spreads(consistent: np.ndarray, ahead: np.ndarray) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+        """Per obstacle and step ahead: the left ends its consistent hypotheses give, and each one's share."""
+        spreads = []
+        for o in range(len(consistent)):
             candidates = ahead[o][consistent[o]]  # (hypotheses, k)
-            for h in range(k):
-                values, counts = np.unique(candidates[:, h], return_counts=True)
-                placed[o, h] = values[np.argmax(counts)]
-        return on_road, placed
+            steps = [np.unique(candidates[:, h], return_counts=True) for h in range(candidates.shape[1])]
+            spreads.append([(values, counts / len(candidates)) for values, counts in steps])
+        return spreads
+
+    @staticmethod
+    def _modes(spreads: list[list[tuple[np.ndarray, np.ndarray]]]) -> np.ndarray:
+        """(obstacles, k) the left end most hypotheses give at each step ahead."""
+        return np.array([[values[np.argmax(shares)] for values, shares in steps] for steps in spreads],
+                        dtype=np.int64).reshape(len(spreads), -1)  # fmt: skip
 
     def predict(self, observed: np.ndarray, k: int) -> Prediction:
         world, t = self.world, len(observed) - 1
         config, layout, traffic = world.config, world.layout, world.traffic
         goal = world.goal[t + 1 : t + 1 + k]
         k = len(goal)
-        none = Traffic(*(getattr(traffic, name)[:0] for name in ("step", "lane", "x0", "velocity", "length", "value")))
-        frames = paint(config, layout, none, goal)  # the goal on an empty road
-        hypotheses = self.hypotheses(t, k)
-        on_road, placed = self._modes(*hypotheses)
-        for o, lefts in zip(on_road, placed, strict=True):
+        frames = paint(config, layout, traffic.entered_by(0), goal)  # the goal on an empty road
+        on_road, consistent, ahead = self.hypotheses(t, k)
+        spreads = self._spreads(consistent, ahead)
+        for o, lefts in zip(on_road, self._modes(spreads), strict=True):
             cols = lefts[:, None] + np.arange(traffic.length[o])
             h, c = np.nonzero((cols >= 0) & (cols < config.width))
             frames[h, layout.rows[traffic.lane[o]], cols[h, c]] = traffic.value[o]
         if self.occupancy > 0:
-            self._draw_occupied(frames, *hypotheses)
+            self._draw_occupied(frames, on_road, spreads)
         return Prediction.from_frames(frames)
 
-    def _draw_occupied(self, frames: np.ndarray, on_road: np.ndarray, consistent: np.ndarray, ahead: np.ndarray):
+    def _draw_occupied(self, frames: np.ndarray, on_road: np.ndarray, spreads: list) -> None:
         """Draw, where the road is free, each pixel covered by at least `occupancy` of an obstacle's hypotheses."""
         traffic, layout, width = self.world.traffic, self.world.layout, self.world.config.width
-        for o, index in enumerate(on_road):
+        for index, steps in zip(on_road, spreads, strict=True):
             length, row = int(traffic.length[index]), layout.rows[traffic.lane[index]]
-            candidates = ahead[o][consistent[o]]  # (hypotheses, k)
-            for h in range(len(frames)):
-                values, counts = np.unique(candidates[:, h], return_counts=True)
+            for h, (values, shares) in enumerate(steps):
                 share = np.zeros(width)
-                for value, count in zip(values, counts, strict=True):
-                    share[max(value, 0) : max(value + length, 0)] += count / len(candidates)
+                for value, part in zip(values, shares, strict=True):
+                    share[max(value, 0) : max(value + length, 0)] += part
                 cols = np.flatnonzero(share >= self.occupancy)
                 free = cols[frames[h, row, cols] == FREE]
                 frames[h, row, free] = traffic.value[index]
