@@ -175,8 +175,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
                         help=f"seed of the first episode (default {EVAL_SEED_START:,}, the evaluation's; "
                         f"{VALIDATION_SEED_START:,}: the validation episodes)")  # fmt: skip
-    for name, kind in (("occupancy", float), ("margin", int)):  # the caution's fields, ranges and words
-        parser.add_argument(f"--{name}", type=kind, help=field_help(Caution, name, "each configuration's own"))
+    for name, info in Caution.model_fields.items():  # the caution's fields, types, ranges and words
+        own = "each configuration's own"
+        parser.add_argument(f"--{name}", type=info.annotation, help=field_help(Caution, name, own))
     parser.add_argument("--workers", type=int, help="batches played at once locally (default: one per core)")
     parser.add_argument("--batch", type=int, default=BATCH, help=f"recorded worlds per lockstep batch, in [1, 10000] "
                         f"(default {BATCH})")  # fmt: skip

@@ -28,6 +28,8 @@ COMMITTED_ROWS = {
     "default_margin0": 1931, "default_epoch7": 1970, "validation_context8": 300, "validation_speed05": 400,
     "validation_speed05_context8": 400, "validation_context16": 300, "validation_speed05_context16": 400,
     "validation_marginal8": 300, "validation_speed05_marginal8": 300, "validation_speed05_marginal16": 200,
+    "validation_speed05_oracle": 400, "validation_speed05_span1": 300, "validation_speed05_span2": 300,
+    "validation_span1": 300,
 }  # fmt: skip
 
 

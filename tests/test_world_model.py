@@ -157,6 +157,56 @@ def test_the_futures_marginal_is_their_mean_obstacle_probability_over_the_greedy
             LearnedWorldModel(tokenizer, prior, marginal=True, **bad)
 
 
+def test_futures_at_a_temperature_are_the_priors_chain_drawn_at_it_and_batch_with_others(tiny_local_model):
+    tokenizer, prior = tiny_local_model
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    probe = LearnedWorldModel(tokenizer, prior)
+    context = probe.encode_context(frames)[None]
+    streams = [(observation_stream(3, context[0].numpy().tobytes(), "futures", j), 1) for j in range(4)]
+    grids, chance = probe._chain(context.expand(4, -1, -1, -1), [3] * 4, 0.5, streams, occupancy=True)
+    cool = LearnedWorldModel(tokenizer, prior, futures=4, seed=3, temperature=0.5)
+    assert cool.name == "model(samples=0, futures=4, temperature=0.5)"
+    expected = merge_samples(probe.predict(frames, 3).frames, tokenizer.decode(grids.flatten(0, 1)).numpy()
+                             .reshape(4, 3, 48, 48))  # fmt: skip
+    np.testing.assert_array_equal(cool.predict(frames, 3).frames, expected)  # the futures drawn at 0.5, by hand
+    threshold = float(np.median(chance[chance < 0.99]))
+    marginal = dict(futures=4, seed=3, occupancy=threshold, marginal=True)
+    settings = [dict(futures=4, seed=3), dict(futures=4, seed=3, temperature=0.5), {**marginal, "temperature": 0.5},
+                marginal]  # fmt: skip
+    alone = [LearnedWorldModel(tokenizer, prior, **s).predict(frames, 3).frames for s in settings]
+    assert not np.array_equal(alone[0], alone[1])  # the temperature changes the draws
+    together = LearnedWorldModel.predict_batch([LearnedWorldModel(tokenizer, prior, **s) for s in settings],
+                                               [frames] * 4, [3] * 4)  # fmt: skip
+    for a, b in zip(alone, together, strict=True):
+        np.testing.assert_array_equal(a, b.frames)  # each temperature's futures drawn apart from the other's
+    for bad in (0.0, -1.0, 2.5):
+        with pytest.raises(ValueError, match=r"temperature .* must be in \(0, 2\], got"):
+            LearnedWorldModel(tokenizer, prior, futures=2, temperature=bad)
+
+
+@pytest.mark.parametrize("marginal", [False, True])
+def test_a_cautions_span_limits_occupancy_and_margin_to_the_first_frames(marginal):
+    frames = generate_world(RoadConfig(), 2000001).frames[:50]
+    futures = dict(futures=3, marginal=True) if marginal else {}
+
+    def obstacles(**caution):
+        seen = load_world_model(model="default", **futures, caution=caution).predict(frames, 3).frames
+        return (seen != 0) & (seen != GOAL_VALUE)
+
+    full = obstacles()
+    greedy = None if marginal else obstacles(occupancy=0, margin=0)  # the marginal needs an occupancy
+    for span in (1, 2):
+        near = obstacles(span=span)
+        np.testing.assert_array_equal(near[:span], full[:span])  # the first `span` frames as cautious as all are
+        assert (near[span:] <= full[span:]).all() and (near[span:] < full[span:]).any()  # the rest less so
+        if greedy is not None:
+            np.testing.assert_array_equal(near[span:], greedy[span:])  # the greedy future's alone
+    np.testing.assert_array_equal(obstacles(span=3), full)  # a span as long as the horizon is no span
+    assert "span=1" in load_world_model(model="default", caution={"span": 1}).name
+    with pytest.raises(ValueError, match=r"span=-1 is invalid .*valid range \[0, 100\]"):
+        load_world_model(model="default", caution={"span": -1})
+
+
 def test_occupancy_names_its_range_and_needs_patch_local_codes(tiny_model, tiny_local_model):
     with pytest.raises(ValueError, match=r"occupancy=.* is invalid .*valid range \[0.0, 1.0\)"):
         LearnedWorldModel(*tiny_local_model, occupancy=1.0)

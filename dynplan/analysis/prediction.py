@@ -156,18 +156,22 @@ def figure1(model: ForwardModel, path: str | os.PathLike, seed: int = EVAL_SEED_
 
 
 def world_model(model: str, samples: int = 0, futures: int = 0, prior: str | None = None,
-                caution: dict[str, float] | None = None, marginal: bool = False) -> ForwardModel:  # fmt: skip
+                caution: dict[str, float] | None = None, marginal: bool = False,
+                temperature: float = 1.0) -> ForwardModel:  # fmt: skip
     """The committed world model of configuration `model`, or its tokenizer with the prior checkpoint `prior`;
     `caution`: what overrides the configuration's own (field → value); `marginal`: the futures merge through their
-    mean obstacle probability."""
+    mean obstacle probability; `temperature`: the futures' codes are drawn at it."""
     from dynplan.models.registry import caution_for
     from dynplan.models.world_model import LearnedWorldModel, load_world_model, world_model_parts, world_model_paths
 
     if prior is None:
-        return load_world_model(model=model, samples=samples, futures=futures, caution=caution, marginal=marginal)
+        return load_world_model(
+            model=model, samples=samples, futures=futures, caution=caution, marginal=marginal, temperature=temperature
+        )
     tokenizer, prior_model = world_model_parts((world_model_paths(model)[0], prior), model)
     return LearnedWorldModel(tokenizer, prior_model, samples=samples, futures=futures,
-                             **caution_for(model, caution).model_dump(), marginal=marginal)  # fmt: skip
+                             **caution_for(model, caution).model_dump(), marginal=marginal,
+                             temperature=temperature)  # fmt: skip
 
 
 def write_curves(path: str | os.PathLike, curves: dict, command: str) -> None:
@@ -194,6 +198,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--context-bound", type=int, nargs="*", default=[], metavar="N",
                         help="also: the context bound of N frames (each obstacle on the road placed where its "
                         "rounded positions over the last N frames most probably put it), each --occupancy")  # fmt: skip
+    parser.add_argument("--temperature", type=float, nargs="+", default=[1.0],
+                        help="temperatures the futures' codes are drawn at, to compare (default: 1)")  # fmt: skip
     parser.add_argument("--prior", help="a prior checkpoint to use instead of the committed one")
     parser.add_argument(
         "--occupancy",
@@ -210,16 +216,18 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--figure", help="write a Figure-1-style image here")
     parser.add_argument("--out", help="add the curves to this JSON file (curves of the same name are replaced)")
     args = parser.parse_args(argv)
-    variants = [(samples, 0, False) for samples in args.samples] + [(0, futures, False) for futures in args.futures]
-    variants += [(0, futures, True) for futures in args.marginal]
+    variants = [(samples, 0, False, 1.0) for samples in args.samples]
+    sampled = [(futures, False) for futures in args.futures] + [(futures, True) for futures in args.marginal]
+    variants += [(0, n, marginal, temperature) for temperature in args.temperature for n, marginal in sampled]
     curves = {}
     cautions = [{name: value for name, value in (("occupancy", occupancy), ("margin", margin)) if value is not None}
                 for occupancy in args.occupancy or [None] for margin in args.margin or [None]]  # fmt: skip
     for caution in cautions:
-        for samples, futures, marginal in variants:
-            model = world_model(args.model, samples, futures, args.prior, caution, marginal)
+        for samples, futures, marginal, temperature in variants:
+            model = world_model(args.model, samples, futures, args.prior, caution, marginal, temperature)
             variant = f"{futures} futures" if futures else "mid" if samples == 0 else f"{samples} samples"
             variant = f"{futures} futures' marginal" if marginal else variant
+            variant += f" at temperature {temperature:g}" * (temperature != 1.0)
             settings = (("occupancy", model.occupancy), ("margin", model.margin))
             name = f"{args.model}, {variant}" + "".join(f", {key} {value:g}" for key, value in settings if value)
             curves[name] = errors_by_horizon(model, args.episodes, first_seed=args.first_seed)

@@ -2,7 +2,9 @@
 
 The paper plans on the greedy (argmax) future alone. Two settings make its frames more cautious, each chosen on
 validation episodes (docs/design.md, occupancy and the lane margin): `occupancy` adds the pixels the prior
-gives at least that probability of holding an obstacle; `margin` widens every predicted obstacle along its lane.
+gives at least that probability of holding an obstacle; `margin` widens every predicted obstacle along its lane;
+`span` limits both to the first frames ahead (the agent replans every step, so only the next frame's misses kill
+at once; a caution over the whole horizon also blocks the road the agent would cross later).
 The module itself needs only pydantic; the results store reads its fields to know a row's provenance.
 """
 
@@ -21,6 +23,8 @@ class Caution(Config):
                              "unsure obstacles join the frames (0: off; needs patch-local codes)")  # fmt: skip
     margin: int = Field(0, ge=0, le=4, description="pixels each predicted obstacle is widened by along its lane, "
                         "both ways (0: off)")  # fmt: skip
+    span: int = Field(0, ge=0, le=100, description="predicted frames, from the next, that occupancy and margin "
+                      "cover (0: every frame)")  # fmt: skip
 
     def recorded(self) -> dict:
         """The settings that are on (what a result played with them records; an absent key means off)."""

@@ -147,13 +147,13 @@ class LearnedWorldModel:
 
     def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, futures: int = 0,
                  seed: int = 0, occupancy: float = 0.0, margin: int = 0, device: str = "cpu",
-                 marginal: bool = False):  # fmt: skip
+                 marginal: bool = False, temperature: float = 1.0, span: int = 0):  # fmt: skip
         if tokenizer.config.codebook_size != prior.config.codebook_size:
             raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
                              f"{tokenizer.config.codebook_size}")  # fmt: skip
         if samples < 0 or futures < 0:
             raise ValueError(f"samples and futures must be >= 0, got {samples}, {futures}")
-        Caution(occupancy=occupancy, margin=margin)  # the ranges' one home; a bad value is a ConfigError naming it
+        Caution(occupancy=occupancy, margin=margin, span=span)  # the ranges' one home: a bad value is a ConfigError
         if occupancy and not (tokenizer.config.local and tokenizer.config.n_codebooks == 1):
             raise ValueError("occupancy needs a tokenizer with patch-local codes (local=True, n_codebooks=1), "
                              f"got {tokenizer.config.name!r}")  # fmt: skip
@@ -161,11 +161,19 @@ class LearnedWorldModel:
             raise ValueError("marginal merges sampled futures through their mean obstacle probability at the "
                              f"occupancy threshold: it needs futures >= 1 and occupancy > 0, got futures={futures}, "
                              f"occupancy={occupancy}")  # fmt: skip
+        if not 0.0 < temperature <= 2.0:
+            raise ValueError(f"temperature (the sampled futures' codes) must be in (0, 2], got {temperature}")
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
         self.samples, self.futures, self.occupancy, self.margin = samples, futures, occupancy, margin
-        self.marginal, self.seed = marginal, seed
+        self.marginal, self.temperature, self.span, self.seed = marginal, temperature, span, seed
         self.generator = torch.Generator().manual_seed(seed)  # `predict_codes`' sampled futures
-        settings = {"marginal": marginal, "occupancy": occupancy, "margin": margin}
+        settings = {
+            "marginal": marginal,
+            "occupancy": occupancy,
+            "margin": margin,
+            "span": span if occupancy or margin else 0,
+            "temperature": temperature if temperature != 1.0 and futures else 0,
+        }
         shown = "".join(f", {key}={value}" for key, value in settings.items() if value)
         self.name = f"model(samples={samples}, futures={futures}{shown})"
         self.context = prior.config.context
@@ -259,6 +267,17 @@ class LearnedWorldModel:
                 context[live] = torch.cat([context[live, 1:], grid[:, None]], dim=1)
         return grids, probability
 
+    def _cautious(self, k: int) -> int:
+        """How many of k predicted frames the caution covers (`span`; 0: all)."""
+        return min(k, self.span) if self.span else k
+
+    def _unsure(self, probability: np.ndarray) -> np.ndarray:
+        """(k, H, W) uint8 frames of the unsure obstacles: where the obstacle `probability` (k, H, W) reaches the
+        occupancy, within the caution's span."""
+        unsure = probability >= self.occupancy
+        unsure[self._cautious(len(unsure)) :] = False
+        return np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)
+
     def cost(self, k: int) -> int:
         """The grids a k-frame prediction generates (the greedy chain and every future): how a shared batch's time
         is split between the episodes that asked for it."""
@@ -334,26 +353,27 @@ class LearnedWorldModel:
                 others[e].append(drawn[key][: models[e].samples, : ks[e]])
         for e, model in enumerate(models):
             if model.occupancy and not model.marginal:
-                unsure = probability[which[e], : ks[e]] >= model.occupancy
-                others[e].append(np.where(unsure, UNSURE_OBSTACLE, FREE).astype(np.uint8)[None])
-        dreamers: dict[tuple[int, int], list[int]] = {}  # (distinct observation, model seed) → the models with futures
+                others[e].append(model._unsure(probability[which[e], : ks[e]])[None])
+        # (distinct observation, model seed, temperature) → the models with futures
+        dreamers: dict[tuple[int, int, float], list[int]] = {}
         for e, model in enumerate(models):
             if model.futures:
-                dreamers.setdefault((which[e], model.seed), []).append(e)
-        by_count = {}
+                dreamers.setdefault((which[e], model.seed, model.temperature), []).append(e)
+        futures_by: dict[tuple[int, float], list] = {}  # (futures, temperature) → ((observation, seed, T), frames)
         for key, members in dreamers.items():
             most = max(models[e].futures for e in members)
-            by_count.setdefault(most, []).append((key, max(ks[e] for e in members)))
-        for count, entries in by_count.items():  # each observation's futures once: the most any model asks for
+            futures_by.setdefault((most, key[2]), []).append((key, max(ks[e] for e in members)))
+        for (count, temperature), entries in futures_by.items():  # each observation's futures once: the most asked
             streams = [
                 (observation_stream(seed, keys[firsts[u]], "futures", j), 1)
-                for (u, seed), _ in entries
+                for (u, seed, _), _ in entries
                 for j in range(count)
             ]  # one stream per future: fewer are a prefix
-            context_rows = torch.tensor([u for (u, _), _ in entries]).repeat_interleave(count)
+            context_rows = torch.tensor([u for (u, _, _), _ in entries]).repeat_interleave(count)
             members = [e for key, _ in entries for e in dreamers[key]]
-            sampled, chance = first._chain(unique[context_rows], np.repeat([n for _, n in entries], count), 1.0,
-                                           streams, occupancy=any(models[e].marginal for e in members))  # fmt: skip
+            sampled, chance = first._chain(unique[context_rows], np.repeat([n for _, n in entries], count),
+                                           temperature, streams,
+                                           occupancy=any(models[e].marginal for e in members))  # fmt: skip
             futures = {}
             if not all(models[e].marginal for e in members):  # some merge the futures' frames: decode them
                 with one_thread():
@@ -367,8 +387,7 @@ class LearnedWorldModel:
                     model = models[e]
                     if model.marginal:  # the mean over this model's futures (a prefix of the group's)
                         marginal = chance[j * count : j * count + model.futures, : ks[e]].mean(axis=0)
-                        unsure = np.where(marginal >= model.occupancy, UNSURE_OBSTACLE, FREE).astype(np.uint8)
-                        others[e].append(unsure[None])
+                        others[e].append(model._unsure(marginal)[None])
                     else:
                         others[e].append(futures[key][: model.futures, : ks[e]])
         predictions = []
@@ -377,7 +396,8 @@ class LearnedWorldModel:
             if others[e]:
                 frames = merge_samples(frames, np.concatenate(others[e]))
             if model.margin:
-                frames = widen_obstacles(frames, model.margin)
+                near = model._cautious(ks[e])
+                frames = np.concatenate([widen_obstacles(frames[:near], model.margin), frames[near:]])
             predictions.append(Prediction.from_frames(frames))
         return predictions
 
@@ -423,7 +443,7 @@ def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple
 
 def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0, futures: int = 0,
                      seed: int = 0, caution: Mapping[str, float] | None = None, device: str = "cpu",
-                     marginal: bool = False) -> LearnedWorldModel:  # fmt: skip
+                     marginal: bool = False, temperature: float = 1.0) -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
     pretrained checkpoints of the configuration `model` ("default" or "paper"), with the configuration's own
     caution (its registry entry) except where `caution` (field → value) overrides it. Weights are loaded once per
@@ -431,4 +451,4 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
     paths = world_model_paths(model) if path is None else (Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt")
     tokenizer, prior = world_model_parts(paths, model)
     return LearnedWorldModel(tokenizer, prior, samples, futures, seed, **caution_for(model, caution).model_dump(),
-                             device=device, marginal=marginal)  # fmt: skip
+                             device=device, marginal=marginal, temperature=temperature)  # fmt: skip
