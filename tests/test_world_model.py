@@ -122,13 +122,19 @@ def test_occupancy_is_the_priors_obstacle_probability_along_the_greedy_future(ti
     assert not (occupied_obstacle & ~obstacle & ~unsure).any()  # and nothing else
 
 
-def test_the_futures_marginal_is_their_mean_obstacle_probability_over_the_greedy_frames(tiny_local_model):
-    tokenizer, prior = tiny_local_model
+def futures_by_hand(model: tuple, temperature: float) -> tuple:
+    """An episode's first 9 frames, the model's greedy probe, and 4 futures of 3 grids drawn at `temperature` from
+    the streams a model of seed 3 draws them from: (frames, probe, grids, per-pixel obstacle probability)."""
     frames = generate_world(RoadConfig(), 0).frames[:9]
-    probe = LearnedWorldModel(tokenizer, prior)
+    probe = LearnedWorldModel(*model)
     context = probe.encode_context(frames)[None]
     streams = [(observation_stream(3, context[0].numpy().tobytes(), "futures", j), 1) for j in range(4)]
-    _, chance = probe._chain(context.expand(4, -1, -1, -1), [3] * 4, 1.0, streams, occupancy=True)
+    return frames, probe, *probe._chain(context.expand(4, -1, -1, -1), [3] * 4, temperature, streams, occupancy=True)
+
+
+def test_the_futures_marginal_is_their_mean_obstacle_probability_over_the_greedy_frames(tiny_local_model):
+    tokenizer, prior = tiny_local_model
+    frames, probe, _, chance = futures_by_hand(tiny_local_model, 1.0)
     mean = chance.mean(axis=0)  # the futures' own draws, by hand: what the model's stream gives them
     greedy = probe.predict(frames, 3).frames
     obstacle = (greedy != 0) & (greedy != GOAL_VALUE)
@@ -159,11 +165,7 @@ def test_the_futures_marginal_is_their_mean_obstacle_probability_over_the_greedy
 
 def test_futures_at_a_temperature_are_the_priors_chain_drawn_at_it_and_batch_with_others(tiny_local_model):
     tokenizer, prior = tiny_local_model
-    frames = generate_world(RoadConfig(), 0).frames[:9]
-    probe = LearnedWorldModel(tokenizer, prior)
-    context = probe.encode_context(frames)[None]
-    streams = [(observation_stream(3, context[0].numpy().tobytes(), "futures", j), 1) for j in range(4)]
-    grids, chance = probe._chain(context.expand(4, -1, -1, -1), [3] * 4, 0.5, streams, occupancy=True)
+    frames, probe, grids, chance = futures_by_hand(tiny_local_model, 0.5)
     cool = LearnedWorldModel(tokenizer, prior, futures=4, seed=3, temperature=0.5)
     assert cool.name == "model(samples=0, futures=4, temperature=0.5)"
     expected = merge_samples(probe.predict(frames, 3).frames, tokenizer.decode(grids.flatten(0, 1)).numpy()

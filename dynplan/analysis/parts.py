@@ -81,10 +81,10 @@ class SwappedModel:
 
 
 def play_views(technique: str, model: str, agent_speed: float, rollout_steps: int, seeds: Sequence[int],
-               views: Sequence[str] = VIEWS, caution: Mapping[str, float] | None = None,
-               playouts: int = 100) -> dict[str, dict[int, str]]:  # fmt: skip
+               views: Sequence[str] = VIEWS, caution: Mapping[str, float] | None = None, playouts: int = 100,
+               model_dir: str | None = None) -> dict[str, dict[int, str]]:  # fmt: skip
     """Each view's outcome ("goal" | "timeout" | "death") per episode seed, the planners seeded as the
-    evaluation's case of `technique` seeds them."""
+    evaluation's case of `technique` seeds them; `model_dir`: other weights, as `flows.evaluate --model-dir`."""
     from dynplan.progress import progress
 
     out: dict[str, dict[int, str]] = {}
@@ -94,7 +94,7 @@ def play_views(technique: str, model: str, agent_speed: float, rollout_steps: in
         planners, models = [], []
         for world in worlds:
             case = Case(technique, agent_speed, rollout_steps, int(world.seed), model)
-            planner, learned = case_agent(case, world, playouts, caution=caution)
+            planner, learned = case_agent(case, world, playouts, model_dir, caution)
             planners.append(planner)
             models.append(SwappedModel(learned, world.frames, view))
         outcomes: dict[int, str] = {}
@@ -116,6 +116,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS))
     parser.add_argument("--agent-speed", type=float, default=0.5)
     parser.add_argument("--rollout-steps", type=int, nargs="+", default=[3])
+    parser.add_argument("--model-dir", help="learned world models under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
+                        "(default: the committed weights)")  # fmt: skip
     parser.add_argument("--views", nargs="+", default=list(VIEWS), choices=VIEWS)
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
@@ -128,7 +130,9 @@ def main(argv: list[str] | None = None) -> dict:
     seeds = range(args.first_seed, args.first_seed + args.episodes)
     rows = []
     for k in args.rollout_steps:
-        played = play_views(args.technique, args.model, args.agent_speed, k, seeds, args.views, caution)
+        played = play_views(
+            args.technique, args.model, args.agent_speed, k, seeds, args.views, caution, model_dir=args.model_dir
+        )
         for view, outcomes in played.items():
             counts = Counter(outcomes.values())
             rows.append({"k": k, "view": view, **{o: counts[o] for o in ("goal", "timeout", "death")},
@@ -136,7 +140,8 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"k = {k}, {view}: {counts['goal']} / {counts['timeout']} / {counts['death']} (G / T / D)")
     if args.out:
         payload = {"technique": args.technique, "model": args.model, "agent_speed": args.agent_speed,
-                   "caution": caution, "first_seed": args.first_seed, "episodes": args.episodes, "rows": rows,
+                   "caution": caution, "model_dir": args.model_dir, "first_seed": args.first_seed,
+                   "episodes": args.episodes, "rows": rows,
                    "command": shlex.join(["python", "-m", "dynplan.analysis.parts",
                                           *(sys.argv[1:] if argv is None else argv)])}  # fmt: skip
         write_bytes_atomic(args.out, (json.dumps(payload, indent=1) + "\n").encode())
