@@ -18,7 +18,7 @@ def test_each_view_takes_the_obstacles_of_one_and_the_goal_of_the_other(learned,
     def obstacles(frames):
         return np.where((frames != FREE) & (frames != GOAL_VALUE), frames, 0)
 
-    assert swap_parts(learned, truth, "learned") is learned
+    assert swap_parts(learned, truth, "learned") is learned and swap_parts(learned, truth, "truth") is truth
     for view, (road, goal) in (("true_goal", (learned, truth)), ("true_obstacles", (truth, learned))):
         frames = swap_parts(learned, truth, view)
         np.testing.assert_array_equal(obstacles(frames), obstacles(road))  # every obstacle of the one

@@ -7,7 +7,8 @@ it. Views, each planned with over the same episodes:
 - `learned`: the prediction as the planner sees it (the row itself, replayed: a check of the replay);
 - `true_goal`: the learned obstacles (caution included), with the true goal drawn under them;
 - `true_obstacles`: the true obstacles, with the learned goal drawn under them;
-- the oracle (both true) is the oracle row of the same episodes.
+- `truth`: both parts true, the oracle's frames under this technique's planner seeds (the control: the oracle's
+  own row has other seeds).
 
 `python -m dynplan.analysis.parts --technique samples5 --agent-speed 0.5 --rollout-steps 3 5 --first-seed 2000000
 --out FILE.json`
@@ -35,7 +36,7 @@ from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.episode import run_episodes
 from dynplan.planning.forward import Prediction
 
-VIEWS = ("learned", "true_goal", "true_obstacles")
+VIEWS = ("learned", "true_goal", "true_obstacles", "truth")
 #: Episodes played in one lockstep batch.
 BATCH = 50
 
@@ -47,6 +48,8 @@ def swap_parts(learned: np.ndarray, truth: np.ndarray, view: str) -> np.ndarray:
         raise ValueError(f"view must be one of {VIEWS}, got {view!r}")
     if view == "learned":
         return learned
+    if view == "truth":
+        return truth
     obstacles, goal = (learned, truth) if view == "true_goal" else (truth, learned)
     road = np.where(obstacles == GOAL_VALUE, FREE, obstacles)
     return np.where((road == FREE) & (goal == GOAL_VALUE), GOAL_VALUE, road).astype(np.uint8)
@@ -118,7 +121,8 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--rollout-steps", type=int, nargs="+", default=[3])
     parser.add_argument("--model-dir", help="learned world models under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
                         "(default: the committed weights)")  # fmt: skip
-    parser.add_argument("--views", nargs="+", default=list(VIEWS), choices=VIEWS)
+    parser.add_argument("--views", nargs="+", default=list(VIEWS[:3]), choices=VIEWS,
+                        help="views to play (default: the three with a learned part; truth: the control)")  # fmt: skip
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
                         help="seed of the first episode (default: the evaluation's; validation: 2000000)")  # fmt: skip
