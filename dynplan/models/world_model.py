@@ -9,16 +9,17 @@ the context), and decodes the k grids. Variants of the paper's Table 1:
   goal is drawn at the median of the goal positions found in them.
 
 Code grids are chosen greedily (argmax) as in the reference. Beyond the paper, `futures = N` also samples N
-stochastic futures from the prior itself (codes drawn at temperature 1) and merges their decoded frames with
-the greedy one the same way as decoder samples — or, with `marginal`, through their obstacle probabilities: the
-pixels whose probability averaged over the futures (an estimate of the prior's marginal, not its greedy path's)
-reaches the occupancy threshold join the greedy frames, and the futures' own frames do not. `occupancy = p`
-alone marks as obstacles the pixels that the prior gives a probability of at least p of holding one, along the
-greedy future (the prior's own uncertainty where the argmax hides it: when an obstacle's next position is split
-over several codes, the argmax can be the empty patch). It needs patch-local codes, each decoding to its own
-patch. `margin = m` widens every predicted obstacle by m pixels along its lane (a row), both ways: the prior
-places a slow obstacle's sub-pixel phase a pixel off often enough that its neighbours are worth avoiding. Each
-configuration has its own caution (its registry entry), chosen on validation episodes.
+stochastic futures from the prior itself (codes drawn at `temperature`, 1 unless set) and merges their decoded
+frames with the greedy one the same way as decoder samples — or, with `marginal`, through their obstacle
+probabilities: the pixels whose probability averaged over the futures (an estimate of the prior's marginal, not its
+greedy path's) reaches the occupancy threshold join the greedy frames, and the futures' own frames do not.
+`occupancy = p` alone marks as obstacles the pixels that the prior gives a probability of at least p of holding
+one, along the greedy future (the prior's own uncertainty where the argmax hides it: when an obstacle's next
+position is split over several codes, the argmax can be the empty patch). It needs patch-local codes, each decoding
+to its own patch. `margin = m` widens every predicted obstacle by m pixels along its lane (a row), both ways: the
+prior places a slow obstacle's sub-pixel phase a pixel off often enough that its neighbours are worth avoiding.
+`span = n` keeps occupancy and margin on the first n predicted frames (0: every frame). Each configuration has its
+own caution (its registry entry), chosen on validation episodes.
 """
 
 from __future__ import annotations
