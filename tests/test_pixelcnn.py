@@ -72,6 +72,50 @@ def test_training_loss_equals_the_cross_entropy_of_the_logits(model):
     assert out.accuracy == (logits.argmax(1) == target).float().mean()
 
 
+def test_a_weighted_loss_is_the_weighted_mean_of_the_positions_cross_entropies(model):
+    """`goal_weight`'s loss: all weights alike is the plain loss; one position's weight dominating gives its own."""
+    import torch.nn.functional as F
+
+    context, target = torch.randint(0, 16, (3, 4, 6, 6)), torch.randint(0, 16, (3, 6, 6))
+    plain = model(context, target)
+    torch.testing.assert_close(model(context, target, torch.full((3, 6, 6), 7.0)).loss, plain.loss)
+    weight = torch.ones(3, 6, 6)
+    weight[1, 2, 4] = 11.0
+    nll = F.cross_entropy(plain.logits, target, reduction="none")
+    expected = (nll.sum() + 10.0 * nll[1, 2, 4]) / weight.sum()
+    torch.testing.assert_close(model(context, target, weight).loss, expected)
+
+
+def test_goal_codes_are_the_codes_that_draw_the_goal():
+    """The committed default tokenizer: the codes of a frame's goal patches are flagged, the empty road's is not,
+    and a context-seeing tokenizer (no patch of its own per code) is refused."""
+    import numpy as np
+
+    from dynplan.env.config import GOAL_VALUE, RoadConfig
+    from dynplan.env.road import generate_world
+    from dynplan.models.checkpoint import load_vqvae_checkpoint
+    from dynplan.models.vqvae import VQVAE, VQVAEConfig
+    from dynplan.models.world_model import world_model_paths
+    from dynplan.training.pixelcnn import goal_codes
+
+    tokenizer = load_vqvae_checkpoint(world_model_paths("default")[0])
+    flags = goal_codes(tokenizer)
+    frames = generate_world(RoadConfig(), 7).frames[::50]
+    codes = torch.as_tensor(tokenizer.encode(frames)).long()
+    ph, pw = tokenizer.patch
+    h, w = codes.shape[1:]
+    goal_patch = torch.from_numpy((frames == GOAL_VALUE).reshape(len(frames), h, ph, w, pw).any(axis=(2, 4)))
+    decoded_goal = torch.from_numpy(np.asarray(tokenizer.decode(codes)) == GOAL_VALUE)
+    decoded_goal = decoded_goal.reshape(len(frames), h, ph, w, pw).any(dim=4).any(dim=2)
+    assert torch.equal(flags[codes], decoded_goal)
+    assert goal_patch.any() and (flags[codes] == goal_patch).float().mean() > 0.99
+    empty = int(tokenizer.encode(np.zeros((1, 48, 48), np.uint8))[0, 0, 0])
+    assert not flags[empty]
+    context_seeing = VQVAE(VQVAEConfig(channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16))
+    with pytest.raises(ValueError, match="patch-local"):
+        goal_codes(context_seeing)
+
+
 def test_codebook_init_keeps_the_codebook_geometry():
     """Embeddings started from the codebook: distances between codes are the codebook's, up to one scale."""
     torch.manual_seed(0)

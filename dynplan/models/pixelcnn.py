@@ -41,8 +41,11 @@ class PixelCNNConfig(Config):
     codebook_init: bool = Field(
         False, description="start both code embeddings from the tokenizer's codebook (else random)"
     )
+    goal_weight: float = Field(
+        1.0, gt=0.0, le=1000.0, description="loss weight of the positions whose target code draws goal pixels"
+    )
 
-    _neutral = {"learning_rate_halflife": None, "codebook_init": False}
+    _neutral = {"learning_rate_halflife": None, "codebook_init": False, "goal_weight": 1.0}
 
 
 PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
@@ -202,11 +205,17 @@ class ConditionalPixelCNN(nn.Module):
         out = self.head[-1]
         return F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)
 
-    def forward(self, context: torch.Tensor, target: torch.Tensor) -> PriorOutput:
-        """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w)."""
+    def forward(self, context: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> PriorOutput:
+        """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w);
+        `weight` (B, h, w): each position's share of the loss (its weighted mean), else all alike."""
         target = target.long()
         logits = self.teacher_forced_logits(context, target)  # (B, h, w, K)
-        loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
+        if weight is None:
+            loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
+        else:
+            nll = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1), reduction="none")
+            weight = weight.reshape(-1).to(nll.dtype)
+            loss = (nll * weight).sum() / weight.sum()
         accuracy = (logits.argmax(-1) == target).float().mean()
         return PriorOutput(logits.permute(0, 3, 1, 2), loss, accuracy)
 

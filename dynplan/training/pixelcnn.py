@@ -19,6 +19,7 @@ import zarr
 
 from dynplan.data.datasets import WindowDataset
 from dynplan.data.history import context_indices, first_target
+from dynplan.env.config import GOAL_VALUE
 from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
@@ -64,6 +65,9 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     E, T = grids.shape[:2]
     first = first_target(config.context)
     val_context, val_target, val_frames = _validation(store, codes, budget.val_frames, config.context)
+    position_weight = None
+    if config.goal_weight != 1.0:
+        position_weight = 1.0 + (config.goal_weight - 1.0) * goal_codes(tokenizer).float().to(device)
 
     def step(generator: torch.Generator) -> dict[str, float]:
         e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
@@ -74,7 +78,8 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         if config.learning_rate_halflife:
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(config, _steps_taken(optimiser))
-        out = model(window[:, :-1], window[:, -1])
+        weight = None if position_weight is None else position_weight[window[:, -1]]
+        out = model(window[:, :-1], window[:, -1], weight)
         optimiser.zero_grad(set_to_none=True)
         out.loss.backward()
         optimiser.step()
@@ -109,6 +114,16 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
                        images=images, unit="windows")  # fmt: skip
     return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
+
+
+@torch.inference_mode()
+def goal_codes(tokenizer) -> torch.Tensor:
+    """(K,) bool: the codes whose decoded patch draws a goal pixel (patch-local codes: each decodes alone)."""
+    if not tokenizer.config.local or tokenizer.config.n_codebooks != 1:
+        raise ValueError("goal_weight needs a patch-local tokenizer of one codebook (VQVAEConfig(local=True, "
+                         "n_codebooks=1)): a code of any other has no patch of its own")  # fmt: skip
+    patches = tokenizer.decode(torch.arange(tokenizer.config.codebook_size).reshape(-1, 1, 1))
+    return (patches == GOAL_VALUE).flatten(1).any(1)
 
 
 def learning_rate(config: PixelCNNConfig, steps: int) -> float:
