@@ -97,3 +97,33 @@ def test_the_context_bounds_occupancy_buys_its_misses_back_with_few_false_positi
     assert (np.array(covered["fn_rate"]) < np.array(placed["fn_rate"])).all()
     assert (np.array(covered["fp_rate"]) >= np.array(placed["fp_rate"])).all() and max(covered["fp_rate"]) < 0.02
     np.testing.assert_allclose(covered["fn_rate"], covered["floor_fn_rate"], atol=0.01)  # at the floor, within a point
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.integers(0, 10_000), st.integers(4, 190), st.sampled_from([1, 2, 4, 8]))
+def test_the_true_goal_is_always_among_its_hypotheses(seed, t, context):
+    """The goal's own (position, velocity) matches its rounded blocks, so the shares give its true block some
+    weight at every step ahead, and each step's shares sum to one."""
+    world = generate_world(RoadConfig(), seed)
+    shares = ContextBoundModel(world, context).goal_shares(t, 5)
+    truth = round_px(world.goal[t + 1 : t + 6])
+    np.testing.assert_allclose(shares.sum(axis=(1, 2)), 1.0)
+    assert (shares[np.arange(5), truth[:, 0], truth[:, 1]] > 0).all()
+
+
+def test_the_goal_bound_sharpens_with_the_context():
+    """One frame leaves the heading open (the block is off at most decisions); four pin it but for its phase, and
+    more frames add little; the placements are the shares' modes."""
+    off = {}
+    for context in (1, 4, 16):
+        wrong = []
+        for seed in range(6):
+            world = generate_world(RoadConfig(), 2_000_000 + seed)
+            model = ContextBoundModel(world, context)
+            for t in range(10, 200, 19):
+                placed = model.goal_placements(t, 3)
+                shares = model.goal_shares(t, 3)
+                assert (shares[np.arange(3), placed[:, 0], placed[:, 1]] == shares.max(axis=(1, 2))).all()
+                wrong.append((placed != round_px(world.goal[t + 1 : t + 4])).any(axis=1))
+        off[context] = np.mean(wrong)
+    assert off[1] > 0.5 and max(off[4], off[16]) < 0.15

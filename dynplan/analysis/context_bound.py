@@ -6,17 +6,30 @@ N frames leave its speed (one of its class's `SPEED_CHOICES`) and its sub-pixel 
 0.2 px/step truck can sit still for all of four frames. `ContextBoundModel` keeps, for each obstacle on the road
 at the decision, every (speed, age) consistent with its rounded positions (and its absence before it entered)
 over the last N frames, and places it where most of them put it at each step ahead. It is told which pixels
-belong to which obstacle, so it bounds what a model of N frames can do with one future; the goal is drawn where
-it truly is (obstacle errors only).
+belong to which obstacle, so it bounds what a model of N frames can do with one future. The goal is bounded
+the same way: every (sub-pixel position, folded velocity) whose rounded blocks over the last N frames match the
+goal's, the block drawn where most of them put it (`goal_placements`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from dynplan.env.config import FREE
-from dynplan.env.road import World, paint, round_px
+from dynplan.env.config import FREE, RoadConfig
+from dynplan.env.road import GOAL_HEADINGS_DEG, World, fold_goal, paint, round_px
 from dynplan.planning.forward import Prediction
+
+#: Sub-pixel positions per pixel and axis among the goal's hypotheses.
+GOAL_GRID = 512
+
+
+def goal_velocities(config: RoadConfig) -> np.ndarray:
+    """(V, 2) every velocity (dy, dx) the goal can have between bounces: each heading's, with either component's sign
+    flipped by a wall (16 distinct ones on the default headings)."""
+    heading = np.deg2rad(GOAL_HEADINGS_DEG)
+    speeds = config.goal_speed * np.abs(np.stack([np.sin(heading), np.cos(heading)], axis=1))
+    signs = np.array([(1, 1), (1, -1), (-1, 1), (-1, -1)], dtype=np.float64)
+    return np.unique((signs[:, None] * speeds[None]).reshape(-1, 2).round(12), axis=0)
 
 
 class ContextBoundModel:
@@ -93,11 +106,45 @@ class ContextBoundModel:
         return np.array([[values[np.argmax(shares)] for values, shares in steps] for steps in spreads],
                         dtype=np.int64).reshape(len(spreads), -1)  # fmt: skip
 
+    def goal_shares(self, t: int, k: int) -> np.ndarray:
+        """(k, H − 1, W − 1) the share of the goal's hypotheses that put its block's lower-left pixel at each place at
+        t+1 … t+k. A hypothesis is a folded velocity and a position at t on a 1/`GOAL_GRID` px grid whose rounded
+        blocks over the context match the goal's, all alike in weight; the axes fold and round apart, so each
+        velocity's hypotheses are a product of one grid per axis. All zero only where every grid point misses a
+        rounding edge the true position sits on."""
+        config, seen = self.world.config, round_px(self.world.goal)
+        span = np.array([config.height - 2, config.width - 2], dtype=np.float64)
+        grid = seen[t] + (np.arange(GOAL_GRID)[:, None] + 0.5) / GOAL_GRID - 0.5  # (G, 2): one grid per axis
+        inside = (grid >= 0) & (grid <= span)  # a folded position lies in the box
+        back = t - np.arange(max(0, t - self.context + 1), t + 1)  # (J,) steps before the decision
+        shares = np.zeros((k, *(span.astype(int) + 1)))
+        for velocity in goal_velocities(config):
+            past = round_px(fold_goal(config, grid[:, None] - back[:, None] * velocity))  # (G, J, 2)
+            consistent = inside & np.all(past == seen[t - back], axis=1)  # (G, 2)
+            if not consistent.any(axis=0).all():
+                continue
+            ahead = round_px(fold_goal(config, grid[:, None] + np.arange(1, k + 1)[:, None] * velocity))  # (G, k, 2)
+            for h in range(k):
+                rows = np.bincount(ahead[consistent[:, 0], h, 0], minlength=shares.shape[1])
+                cols = np.bincount(ahead[consistent[:, 1], h, 1], minlength=shares.shape[2])
+                shares[h] += np.outer(rows, cols)
+        total = shares.sum(axis=(1, 2), keepdims=True)
+        return np.divide(shares, total, out=np.zeros_like(shares), where=total > 0)
+
+    def goal_placements(self, t: int, k: int) -> np.ndarray:
+        """(k, 2) the goal block most of its hypotheses give at t+1 … t+k (its last block where none is left)."""
+        shares = self.goal_shares(t, k)
+        flat = shares.reshape(k, -1).argmax(axis=1)
+        blocks = np.stack(np.unravel_index(flat, shares.shape[1:]), axis=1)
+        none = shares.reshape(k, -1).max(axis=1) == 0
+        blocks[none] = round_px(self.world.goal[t])
+        return blocks
+
     def predict(self, observed: np.ndarray, k: int) -> Prediction:
         world, t = self.world, len(observed) - 1
         config, layout, traffic = world.config, world.layout, world.traffic
-        goal = world.goal[t + 1 : t + 1 + k]
-        k = len(goal)
+        k = len(world.goal[t + 1 : t + 1 + k])
+        goal = self.goal_placements(t, k).astype(np.float64)
         frames = paint(config, layout, traffic.entered_by(0), goal)  # the goal on an empty road
         on_road, consistent, ahead = self.hypotheses(t, k)
         spreads = self._spreads(consistent, ahead)

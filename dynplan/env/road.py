@@ -20,6 +20,8 @@ from dynplan.env.config import AGENT_START_MARGIN, GOAL_VALUE, RoadConfig, spawn
 
 #: Number of goal headings: 1°, 46°, …, 316°.
 GOAL_HEADINGS = 8
+#: The goal's headings in degrees (y up, from the +x axis), one drawn per episode.
+GOAL_HEADINGS_DEG = 1.0 + 45.0 * np.arange(GOAL_HEADINGS)
 #: Each class draws its speed from this many evenly spaced values.
 SPEED_CHOICES = 10
 
@@ -121,7 +123,7 @@ def draw(config: RoadConfig, seed: int, n_frames: int) -> Draws:
     direction = np.where(layout_rng.random(len(rows)) < 0.5, 1, -1).astype(np.int64)
 
     goal_start = goal_rng.uniform((0.0, 0.0), (H - 2, W - 2))
-    heading = np.deg2rad(1.0 + 45.0 * goal_rng.integers(GOAL_HEADINGS))
+    heading = np.deg2rad(GOAL_HEADINGS_DEG[goal_rng.integers(GOAL_HEADINGS)])
     goal_velocity = config.goal_speed * np.array([np.sin(heading), np.cos(heading)])
 
     start_row = 0 if agent_rng.random() < 0.5 else H - 2
@@ -157,9 +159,14 @@ def spawn_traffic(config: RoadConfig, draws: Draws) -> Traffic:
 
 def goal_track(config: RoadConfig, draws: Draws, n_frames: int) -> np.ndarray:
     """(T, 2) goal positions: straight motion folded into the box [0, H−2] × [0, W−2] (mirror reflection)."""
-    span = np.array([config.height - 2, config.width - 2], dtype=np.float64)
     world_steps = config.width + np.arange(n_frames)
-    unfolded = draws.goal_start + world_steps[:, None] * draws.goal_velocity
+    return fold_goal(config, draws.goal_start + world_steps[:, None] * draws.goal_velocity)
+
+
+def fold_goal(config: RoadConfig, unfolded: np.ndarray) -> np.ndarray:
+    """(…, 2) straight-line goal positions folded into the box [0, H−2] × [0, W−2] by mirror reflection at its
+    walls — the goal's bounces. Folding a folded position moved along its folded velocity is folding the line."""
+    span = np.array([config.height - 2, config.width - 2], dtype=np.float64)
     m = np.mod(unfolded, 2 * span)
     return np.where(m > span, 2 * span - m, m)
 
