@@ -116,6 +116,33 @@ def test_goal_codes_are_the_codes_that_draw_the_goal():
         goal_codes(context_seeing)
 
 
+def test_the_lane_convolution_reaches_along_the_row_and_starts_as_the_prior_without_it():
+    """The conditioning of position (i, j) sees the context 2 codes along its row without `lane_kernel`, and
+    `lane_kernel // 2` further with it; zero at first, so a warm start from a prior without it conditions alike."""
+    torch.manual_seed(0)
+    plain = ConditionalPixelCNN(SMALL)
+    lane = ConditionalPixelCNN(SMALL.model_copy(update={"lane_kernel": 7}))
+    lane.load_state_dict({**lane.state_dict(), **plain.state_dict()})
+    context = torch.randint(0, 16, (2, 4, 6, 10))
+    torch.testing.assert_close(lane.condition(context), plain.condition(context), atol=0, rtol=0)
+
+    def reach(model: ConditionalPixelCNN) -> torch.Tensor:
+        """(h, w) which context positions the conditioning at (2, 1) depends on."""
+        e = model.context_embed(context[:1].long()).permute(0, 1, 4, 2, 3).reshape(1, -1, 6, 10)
+        e = e.detach().requires_grad_(True)
+        hidden = model.conditioner[:2](e)
+        out = model.conditioner[2](hidden) + (model.lane(hidden) if model.config.lane_kernel > 1 else 0)
+        (grad,) = torch.autograd.grad(out[0, :, 2, 1].sum(), e)
+        return grad.abs().sum((0, 1)) > 0
+
+    with torch.no_grad():
+        lane.lane.weight.normal_()
+    assert reach(plain)[2].nonzero().max() == 3 and reach(lane)[2].nonzero().max() == 1 + 1 + 3
+    assert not reach(lane)[5].any()  # along the row, not across more rows than before
+    with pytest.raises(ConfigError, match="lane_kernel must be odd"):
+        PixelCNNConfig(lane_kernel=4)
+
+
 def test_codebook_init_keeps_the_codebook_geometry():
     """Embeddings started from the codebook: distances between codes are the codebook's, up to one scale."""
     torch.manual_seed(0)
@@ -197,6 +224,12 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     assert 0 < first.abs().max() < 1e-6  # barely moved from zero by a vanishing rate
     contexts = torch.randint(0, 16, (5, 7, 6, 6), generator=torch.Generator().manual_seed(0))
     torch.testing.assert_close(grown.condition(contexts), source.condition(contexts[:, 3:]), atol=1e-4, rtol=0)
+    # A lane convolution grown onto the same weights starts at zero: the prior conditions as its source did.
+    wider = config.model_copy(update={"lane_kernel": 5, "learning_rate": 1e-9})
+    laned = load_pixelcnn_checkpoint(train_pixelcnn(store, "codes_tiny", tmp_path / "lane", wider, TrainBudget(
+        epochs=1, steps_per_epoch=2, val_frames=8, threads=1, init_from=str(exported))))  # fmt: skip
+    assert 0 < laned.lane.weight.abs().max() < 1e-6
+    torch.testing.assert_close(laned.condition(contexts[:, 3:]), source.condition(contexts[:, 3:]), atol=1e-4, rtol=0)
 
 
 @pytest.mark.parametrize(("seed", "K", "grid", "batch"), [(0, 16, 6, 1), (1, 64, 6, 3), (2, 32, 12, 2), (3, 16, 5, 1)])

@@ -45,8 +45,9 @@ def prediction_section(results: Path, docs: Path) -> list[str]:
              "greedy code future decoded to its most likely frame; `N samples` merges N decoded samples; `N futures` "
              "merges N code futures sampled from the prior; occupancy and margin are the default configuration's "
              "caution (docs/protocol.md §2). A *context bound, N frames* places each obstacle on the road at the "
-             "decision where its rounded positions over the last N frames most probably put it (`dynplan.analysis."
-             "context_bound`): the best a single predicted future from N frames can do.", ""]  # fmt: skip
+             "decision, and the goal, where their rounded positions over the last N frames most probably put them "
+             "(`dynplan.analysis.context_bound`): the best a single predicted future from N frames can do.",
+             ""]  # fmt: skip
     for path in sorted(results.glob("prediction_*.json")):
         curves = json.loads(path.read_text())["curves"]
         header = " | ".join(f"k = {k}: FN / FP, goal" for k in HORIZONS)

@@ -4,7 +4,9 @@ A gated PixelCNN (van den Oord et al. 2016) over a code grid: a vertical stack t
 horizontal stack that sees the codes to the left in the current row, fed from the vertical one; the first
 layer is masked "A" (excludes the current position), the rest "B"; the horizontal stack is residual after the
 first layer. The four previous code grids are embedded, mixed by a small non-causal convolution stack into a
-spatial conditioning map, and added to the gates of every layer.
+spatial conditioning map, and added to the gates of every layer. Beyond the paper, `lane_kernel` adds a convolution
+along each code row of the conditioning (obstacles move along rows): a prior of a long context sees where fast
+obstacles were further along their lanes than the two 3 × 3 convolutions reach.
 
 Shapes: codes (B, h, w) int64 in [0, K); context (B, 4, h, w); logits (B, K, h, w).
 """
@@ -15,7 +17,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from pydantic import Field
+from pydantic import Field, field_validator
 from torch import nn
 
 from dynplan.config import Config
@@ -44,8 +46,18 @@ class PixelCNNConfig(Config):
     goal_weight: float = Field(
         1.0, gt=0.0, le=1000.0, description="loss weight of the positions whose target code draws goal pixels"
     )
+    lane_kernel: int = Field(
+        1, ge=1, le=31, description="odd width in codes of a row convolution added to the conditioning map; 1: none"
+    )
 
-    _neutral = {"learning_rate_halflife": None, "codebook_init": False, "goal_weight": 1.0}
+    _neutral = {"learning_rate_halflife": None, "codebook_init": False, "goal_weight": 1.0, "lane_kernel": 1}
+
+    @field_validator("lane_kernel")
+    @classmethod
+    def _odd(cls, v: int) -> int:
+        if v % 2 != 1:
+            raise ValueError(f"lane_kernel must be odd (centred on its code), got {v}")
+        return v
 
 
 PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
@@ -125,6 +137,11 @@ class ConditionalPixelCNN(nn.Module):
             nn.ReLU(),
             nn.Conv2d(c.condition_channels, c.condition_channels, 3, padding=1),
         )
+        if c.lane_kernel > 1:  # zero at first: a prior grown from one without it predicts as that one did
+            self.lane = nn.Conv2d(c.condition_channels, c.condition_channels, (1, c.lane_kernel),
+                                  padding=(0, c.lane_kernel // 2))  # fmt: skip
+            nn.init.zeros_(self.lane.weight)
+            nn.init.zeros_(self.lane.bias)
         self.layers = nn.ModuleList(
             GatedLayer(
                 "A" if i == 0 else "B",
@@ -166,11 +183,18 @@ class ConditionalPixelCNN(nn.Module):
         into[:, grown:].copy_(source)  # channels are frame-major, oldest frame first
         return True
 
+    def starts_fresh(self, name: str) -> bool:
+        """Whether the parameter `name` keeps its own start when a warm start's source lacks it: the lane
+        convolution, zero at first, so the grown prior first predicts as its source."""
+        return name.startswith("lane.")
+
     def condition(self, context: torch.Tensor) -> torch.Tensor:
         """context (B, 4, h, w) codes → conditioning map (B, condition_channels, h, w)."""
         B, n, h, w = context.shape
         e = self.context_embed(context.long())  # (B, n, h, w, E)
-        return self.conditioner(e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w))
+        hidden = self.conditioner[:2](e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w))
+        out = self.conditioner[2](hidden)
+        return out + self.lane(hidden) if self.config.lane_kernel > 1 else out
 
     def layer_conditions(self, condition: torch.Tensor) -> torch.Tensor:
         """Every layer's conditioning of its vertical and horizontal gates from the conditioning map (B, c, h, w), as
