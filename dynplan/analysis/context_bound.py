@@ -16,18 +16,17 @@ from __future__ import annotations
 import numpy as np
 
 from dynplan.env.config import FREE, RoadConfig
-from dynplan.env.road import GOAL_HEADINGS_DEG, World, fold_goal, paint, round_px
+from dynplan.env.road import GOAL_HEADINGS_DEG, World, fold_goal, goal_box, goal_velocities, paint, round_px
 from dynplan.planning.forward import Prediction
 
 #: Sub-pixel positions per pixel and axis among the goal's hypotheses.
 GOAL_GRID = 512
 
 
-def goal_velocities(config: RoadConfig) -> np.ndarray:
+def folded_goal_velocities(config: RoadConfig) -> np.ndarray:
     """(V, 2) every velocity (dy, dx) the goal can have between bounces: each heading's, with either component's sign
     flipped by a wall (16 distinct ones on the default headings)."""
-    heading = np.deg2rad(GOAL_HEADINGS_DEG)
-    speeds = config.goal_speed * np.abs(np.stack([np.sin(heading), np.cos(heading)], axis=1))
+    speeds = np.abs(goal_velocities(config, GOAL_HEADINGS_DEG))
     signs = np.array([(1, 1), (1, -1), (-1, 1), (-1, -1)], dtype=np.float64)
     return np.unique((signs[:, None] * speeds[None]).reshape(-1, 2).round(12), axis=0)
 
@@ -112,13 +111,12 @@ class ContextBoundModel:
         blocks over the context match the goal's, all alike in weight; the axes fold and round apart, so each
         velocity's hypotheses are a product of one grid per axis. All zero only where every grid point misses a
         rounding edge the true position sits on."""
-        config, seen = self.world.config, round_px(self.world.goal)
-        span = np.array([config.height - 2, config.width - 2], dtype=np.float64)
+        config, seen, span = self.world.config, self.world.goal_px, goal_box(self.world.config)
         grid = seen[t] + (np.arange(GOAL_GRID)[:, None] + 0.5) / GOAL_GRID - 0.5  # (G, 2): one grid per axis
         inside = (grid >= 0) & (grid <= span)  # a folded position lies in the box
         back = t - np.arange(max(0, t - self.context + 1), t + 1)  # (J,) steps before the decision
         shares = np.zeros((k, *(span.astype(int) + 1)))
-        for velocity in goal_velocities(config):
+        for velocity in folded_goal_velocities(config):
             past = round_px(fold_goal(config, grid[:, None] - back[:, None] * velocity))  # (G, J, 2)
             consistent = inside & np.all(past == seen[t - back], axis=1)  # (G, 2)
             if not consistent.any(axis=0).all():
@@ -133,17 +131,16 @@ class ContextBoundModel:
 
     def goal_placements(self, t: int, k: int) -> np.ndarray:
         """(k, 2) the goal block most of its hypotheses give at t+1 … t+k (its last block where none is left)."""
-        shares = self.goal_shares(t, k)
-        flat = shares.reshape(k, -1).argmax(axis=1)
-        blocks = np.stack(np.unravel_index(flat, shares.shape[1:]), axis=1)
-        none = shares.reshape(k, -1).max(axis=1) == 0
-        blocks[none] = round_px(self.world.goal[t])
+        places = goal_box(self.world.config).astype(int) + 1
+        shares = self.goal_shares(t, k).reshape(k, places.prod())
+        blocks = np.stack(np.unravel_index(shares.argmax(axis=1), places), axis=1)
+        blocks[shares.max(axis=1, initial=0) == 0] = self.world.goal_px[t]
         return blocks
 
     def predict(self, observed: np.ndarray, k: int) -> Prediction:
         world, t = self.world, len(observed) - 1
         config, layout, traffic = world.config, world.layout, world.traffic
-        k = len(world.goal[t + 1 : t + 1 + k])
+        k = min(k, len(world.goal) - t - 1)
         goal = self.goal_placements(t, k).astype(np.float64)
         frames = paint(config, layout, traffic.entered_by(0), goal)  # the goal on an empty road
         on_road, consistent, ahead = self.hypotheses(t, k)

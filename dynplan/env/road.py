@@ -123,8 +123,7 @@ def draw(config: RoadConfig, seed: int, n_frames: int) -> Draws:
     direction = np.where(layout_rng.random(len(rows)) < 0.5, 1, -1).astype(np.int64)
 
     goal_start = goal_rng.uniform((0.0, 0.0), (H - 2, W - 2))
-    heading = np.deg2rad(GOAL_HEADINGS_DEG[goal_rng.integers(GOAL_HEADINGS)])
-    goal_velocity = config.goal_speed * np.array([np.sin(heading), np.cos(heading)])
+    goal_velocity = goal_velocities(config, GOAL_HEADINGS_DEG[goal_rng.integers(GOAL_HEADINGS)])
 
     start_row = 0 if agent_rng.random() < 0.5 else H - 2
     start_col = agent_rng.integers(AGENT_START_MARGIN, W - AGENT_START_MARGIN)
@@ -163,10 +162,21 @@ def goal_track(config: RoadConfig, draws: Draws, n_frames: int) -> np.ndarray:
     return fold_goal(config, draws.goal_start + world_steps[:, None] * draws.goal_velocity)
 
 
+def goal_velocities(config: RoadConfig, heading_deg: np.ndarray | float) -> np.ndarray:
+    """(…, 2) the goal's velocity (dy, dx) at each heading (degrees from the +x axis, y up)."""
+    heading = np.deg2rad(np.asarray(heading_deg, dtype=np.float64))
+    return config.goal_speed * np.stack([np.sin(heading), np.cos(heading)], axis=-1)
+
+
+def goal_box(config: RoadConfig) -> np.ndarray:
+    """(2,) the far corner (H−2, W−2) of the box [0, H−2] × [0, W−2] the goal block's lower-left corner moves in."""
+    return np.array([config.height - 2, config.width - 2], dtype=np.float64)
+
+
 def fold_goal(config: RoadConfig, unfolded: np.ndarray) -> np.ndarray:
-    """(…, 2) straight-line goal positions folded into the box [0, H−2] × [0, W−2] by mirror reflection at its
-    walls — the goal's bounces. Folding a folded position moved along its folded velocity is folding the line."""
-    span = np.array([config.height - 2, config.width - 2], dtype=np.float64)
+    """(…, 2) straight-line goal positions folded into `goal_box` by mirror reflection at its walls — the goal's
+    bounces. Folding a folded position moved along its folded velocity is folding the line."""
+    span = goal_box(config)
     m = np.mod(unfolded, 2 * span)
     return np.where(m > span, 2 * span - m, m)
 

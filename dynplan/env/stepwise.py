@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from dynplan.env.config import GOAL_VALUE, RoadConfig, spawn_probability
-from dynplan.env.road import SPEED_CHOICES, draw, round_px
+from dynplan.env.road import SPEED_CHOICES, draw, goal_box, round_px
 
 
 def simulate_world(config: RoadConfig, seed: int, n_frames: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -26,7 +26,7 @@ def simulate_world(config: RoadConfig, seed: int, n_frames: int | None = None) -
     live: list[dict] = []
     goal = draws.goal_start.copy()
     goal_velocity = draws.goal_velocity.copy()
-    span = np.array([H - 2, W - 2], dtype=np.float64)
+    span = goal_box(config)
     frames = np.zeros((n_frames, H, W), dtype=np.uint8)
     goals = np.zeros((n_frames, 2))
 

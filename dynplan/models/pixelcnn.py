@@ -173,7 +173,13 @@ class ConditionalPixelCNN(nn.Module):
     def place_warm_start(self, name: str, source: torch.Tensor, into: torch.Tensor) -> bool:
         """Start a prior of a longer context from a shorter one's weights (`flows.train --init-from`): the first
         conditioning convolution keeps the source's weights on the channels of the most recent frames and zero on
-        the older ones, so the grown prior first predicts exactly as the source did. False for any other tensor."""
+        the older ones, so the grown prior first predicts exactly as the source did; a wider lane convolution keeps
+        the source's taps centred. False for any other tensor."""
+        if name == "lane.weight" and source.shape[:3] == into.shape[:3] and source.shape[3] < into.shape[3]:
+            into.zero_()  # a wider lane convolution: the source's taps in the middle, zero on either side
+            offset = (into.shape[3] - source.shape[3]) // 2
+            into[..., offset : offset + source.shape[3]].copy_(source)
+            return True
         if name != "conditioner.0.weight" or source.shape[0] != into.shape[0]:
             return False
         grown = into.shape[1] - source.shape[1]

@@ -208,8 +208,9 @@ def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:
         source = {**source, "code_sharpness": torch.ones_like(target["code_sharpness"])}
     source = {k: v for k, v in source.items() if k != "code_sharpness" or k in target}
     fresh = getattr(model, "starts_fresh", lambda name: False)  # a part the model adds at its own start
-    if set(source) != set(target) - {name for name in set(target) - set(source) if fresh(name)}:
-        differing = ", ".join(sorted(set(source) ^ set(target))[:4])
+    expected = {name for name in target if name in source or not fresh(name)}
+    if set(source) != expected:
+        differing = ", ".join(sorted(set(source) ^ expected)[:4])
         raise checkpoint.CheckpointError(
             f"{path}: cannot start this run from it: the architecture differs (parameters {differing} …)"
         )

@@ -24,6 +24,7 @@ from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.vqvae import VQVAE
 from dynplan.render import comparison_columns
 from dynplan.training import loop
 from dynplan.training.loop import TrainBudget
@@ -53,6 +54,9 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         raise ValueError(f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
                          f"for codebook_size={config.codebook_size}")  # fmt: skip
     device = budget.torch_device
+    position_weight = None  # the training loss's weight by target code; the validation loss stays unweighted
+    if config.goal_weight != 1.0:
+        position_weight = 1.0 + (config.goal_weight - 1.0) * goal_codes(tokenizer).float().to(device)
     model = ConditionalPixelCNN(config)
     if config.codebook_init:  # a warm start (`init_from`), loaded later, replaces this
         model.embed_codebook(tokenizer.quantizer.embed[0], torch.Generator().manual_seed(budget.seed))
@@ -65,9 +69,6 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     E, T = grids.shape[:2]
     first = first_target(config.context)
     val_context, val_target, val_frames = _validation(store, codes, budget.val_frames, config.context)
-    position_weight = None
-    if config.goal_weight != 1.0:
-        position_weight = 1.0 + (config.goal_weight - 1.0) * goal_codes(tokenizer).float().to(device)
 
     def step(generator: torch.Generator) -> dict[str, float]:
         e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
@@ -117,7 +118,7 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
 
 
 @torch.inference_mode()
-def goal_codes(tokenizer) -> torch.Tensor:
+def goal_codes(tokenizer: VQVAE) -> torch.Tensor:
     """(K,) bool: the codes whose decoded patch draws a goal pixel (patch-local codes: each decodes alone)."""
     if not tokenizer.config.local or tokenizer.config.n_codebooks != 1:
         raise ValueError("goal_weight needs a patch-local tokenizer of one codebook (VQVAEConfig(local=True, "
