@@ -118,7 +118,7 @@ def test_goal_codes_are_the_codes_that_draw_the_goal():
 
 def test_the_lane_convolution_reaches_along_the_row_and_starts_as_the_prior_without_it():
     """The conditioning of position (2, 1) sees the context 2 codes along its row without `lane_kernel`, and
-    1 + `lane_kernel` // 2 with it, on no more rows; zero at first, so a prior grown from one without it conditions
+    1 + `lane_kernel` // 2 with it, on no more rows; it starts at zero, so a prior grown from one without it conditions
     alike."""
     torch.manual_seed(0)
     plain = ConditionalPixelCNN(SMALL)

@@ -137,7 +137,7 @@ class ConditionalPixelCNN(nn.Module):
             nn.ReLU(),
             nn.Conv2d(c.condition_channels, c.condition_channels, 3, padding=1),
         )
-        if c.lane_kernel > 1:  # zero at first: a prior grown from one without it predicts as that one did
+        if c.lane_kernel > 1:  # starts at zero: a prior grown from one without it predicts as that one did
             self.lane = nn.Conv2d(c.condition_channels, c.condition_channels, (1, c.lane_kernel),
                                   padding=(0, c.lane_kernel // 2))  # fmt: skip
             nn.init.zeros_(self.lane.weight)
@@ -191,7 +191,7 @@ class ConditionalPixelCNN(nn.Module):
 
     def starts_fresh(self, name: str) -> bool:
         """Whether the parameter `name` keeps its own start when a warm start's source lacks it: the lane
-        convolution, zero at first, so the grown prior first predicts as its source."""
+        convolution, which starts at zero, so the grown prior first predicts as its source."""
         return name.startswith("lane.")
 
     def condition(self, context: torch.Tensor) -> torch.Tensor:
