@@ -198,8 +198,9 @@ class ConditionalPixelCNN(nn.Module):
         """context (B, 4, h, w) codes → conditioning map (B, condition_channels, h, w)."""
         B, n, h, w = context.shape
         e = self.context_embed(context.long())  # (B, n, h, w, E)
-        hidden = self.conditioner[:2](e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w))
-        out = self.conditioner[2](hidden)
+        mix, relu, out_conv = self.conditioner  # unpacked: a slice would build a Sequential per call
+        hidden = relu(mix(e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w)))
+        out = out_conv(hidden)
         return out + self.lane(hidden) if self.config.lane_kernel > 1 else out
 
     def layer_conditions(self, condition: torch.Tensor) -> torch.Tensor:
