@@ -1,13 +1,8 @@
-"""Pictures of the world: the paper's colours (viridis over pixel values) and GIFs.
-
-Free space is violet, obstacles blue to cyan by class, the agent green and the goal yellow — matplotlib's
-viridis applied to the uint8 values, as in the paper's figures. Row 0 of the world is the bottom, so images
-are flipped to put it there (`origin="lower"`).
-"""
+"""Pictures built from the world's colours (`dynplan.env.colors`): enlarged frames, prediction-error images, side
+by side columns and GIFs."""
 
 from __future__ import annotations
 
-import functools
 import io
 import os
 from collections.abc import Sequence
@@ -15,37 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dynplan.env.config import AGENT_VALUE
-from dynplan.env.road import round_px
+from dynplan.env.colors import colorize, palette
+from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.files import write_bytes_atomic
-
-
-@functools.cache
-def palette() -> np.ndarray:
-    """(256, 3) uint8 lookup table: pixel value → RGB (viridis)."""
-    import matplotlib
-
-    rgba = matplotlib.colormaps["viridis"](np.linspace(0.0, 1.0, 256))
-    return np.round(rgba[:, :3] * 255).astype(np.uint8)
-
-
-def draw_agent(frames: np.ndarray, agent: np.ndarray) -> np.ndarray:
-    """Copy of `frames` (..., H, W) with the agent at `agent` (..., 2) drawn as value 200 where on the grid."""
-    out = np.array(frames, copy=True)
-    H, W = out.shape[-2:]
-    px = round_px(agent).reshape(-1, 2)
-    flat = out.reshape(-1, H, W)
-    on_grid = (px[:, 0] >= 0) & (px[:, 0] < H) & (px[:, 1] >= 0) & (px[:, 1] < W)
-    idx = np.nonzero(on_grid)[0]
-    flat[idx, px[idx, 0], px[idx, 1]] = AGENT_VALUE
-    return out
-
-
-def colorize(frames: np.ndarray, agent: np.ndarray | None = None) -> np.ndarray:
-    """World frames (..., H, W) uint8 → RGB images (..., H, W, 3) with row 0 at the bottom."""
-    if agent is not None:
-        frames = draw_agent(frames, agent)
-    return np.flip(palette()[frames], axis=-3)
 
 
 def upscale(images: np.ndarray, scale: int) -> np.ndarray:
@@ -76,8 +43,6 @@ PREDICTED_GOAL = np.array([255, 150, 0], np.uint8)  # orange, drawn over the tru
 def error_image(true: np.ndarray, predicted: np.ndarray) -> np.ndarray:
     """The paper's Figure 1 error panel for one frame pair (H, W) → RGB (H, W, 3), row 0 at the bottom:
     false negatives red, false positives blue, true goal yellow, predicted goal orange (orange alone = exact)."""
-    from dynplan.env.config import FREE, GOAL_VALUE
-
     colours = palette()
     true_obstacle = (true != FREE) & (true != GOAL_VALUE)
     predicted_obstacle = (predicted != FREE) & (predicted != GOAL_VALUE)

@@ -19,7 +19,8 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.data.store import LogInfo, build_frame_store, inspect_for_store, list_logs, store_problem
+from dynplan.data.build import build_frame_store
+from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem
 from dynplan.data.verify import verify_store
 from dynplan.files import check_output
 from dynplan.progress import progress

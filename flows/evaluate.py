@@ -46,8 +46,9 @@ from dynplan.evaluation.table import aggregate, load_results, render_markdown, w
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
+from dynplan.models.device import check_device
 from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
-from dynplan.models.world_model import check_device, world_model_parts, world_model_paths
+from dynplan.models.world_model import world_model_parts, world_model_paths
 from dynplan.planning.mcts import MCTSConfig
 from dynplan.progress import progress
 from flows.artifacts import ProgressArtifact, publish_table1
@@ -205,6 +206,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
             MCTSConfig(rollout_steps=k, playouts=args.playouts)
         CollectPlan(episodes=args.episodes, seed=args.first_seed)
         Caution(**overrides)
+        if any(TECHNIQUES[t].world_model for t in args.techniques):
+            for model in args.models:  # the caution each configuration plays with fits its tokenizer
+                caution_for(model, overrides).check_fits(world_model_spec(model).tokenizer.local, model)
     except ConfigError as error:
         parser.error(str(error))
     try:
@@ -214,17 +218,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.first_seed != EVAL_SEED_START and args.run == EVALUATION_RUN:
         parser.error(f"--first-seed={args.first_seed} needs its own --run: the run {EVALUATION_RUN!r} holds the "
                      f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
-    if args.occupancy and any(TECHNIQUES[t].world_model for t in args.techniques):
-        for model in args.models:
-            if not world_model_spec(model).tokenizer.local:
-                parser.error(f"--occupancy needs patch-local codes; the {model} configuration's tokenizer has none")
-    marginal = [t for t in args.techniques if TECHNIQUES[t].marginal]
-    for model in args.models if marginal else ():
-        if not world_model_spec(model).tokenizer.local:
-            parser.error(f"{marginal[0]} needs patch-local codes; the {model} configuration's tokenizer has none")
-        if not caution_for(model, overrides).occupancy:
-            parser.error(f"{marginal[0]} thresholds its futures' obstacle probability at the occupancy, which is off "
-                         f"for the {model} configuration; give --occupancy in (0, 1)")  # fmt: skip
     if args.workers is not None and not 1 <= args.workers <= 256:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     if not 1 <= args.batch <= 10_000:

@@ -31,6 +31,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from dynplan.env.agent import ACTION_ANGLES_DEG
+from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.cases import VALIDATION_SEED_START, Case
@@ -43,7 +44,7 @@ from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.registry import WORLD_MODELS
 from dynplan.play import HORIZONS, PlayState
-from dynplan.render import colorize, error_image, upscale
+from dynplan.render import error_image, upscale
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
 MOVE_KEYS = {"w": 90, "e": 45, "d": 0, "c": -45, "x": -90, "z": -135, "a": 180, "q": 135,

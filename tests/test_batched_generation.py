@@ -79,7 +79,7 @@ def test_weights_are_laid_out_once_and_stay_as_they_were_laid_out():
 
 
 def test_the_world_model_generates_large_batches_batched_and_names_a_bad_device(monkeypatch):
-    from dynplan.models import world_model
+    from dynplan.models import chain, world_model
     from dynplan.models.vqvae import VQVAE, VQVAEConfig
 
     tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
@@ -89,12 +89,12 @@ def test_the_world_model_generates_large_batches_batched_and_names_a_bad_device(
     h, w = tokenizer.config.grid
     context = torch.randint(0, 16, (3, 4, h, w))
     calls = []
-    original = world_model.generate_batched
-    monkeypatch.setattr(world_model, "generate_batched", lambda *a, **k: calls.append(1) or original(*a, **k))
-    kernel, _ = model._chain(context, [2] * 3)
+    original = chain.generate_batched
+    monkeypatch.setattr(chain, "generate_batched", lambda *a, **k: calls.append(1) or original(*a, **k))
+    kernel, _ = chain.chain(prior, context, [2] * 3, model.chain_spec())
     assert not calls
-    monkeypatch.setattr(world_model, "BATCHED_FROM", 2)
-    assert torch.equal(model._chain(context, [2] * 3)[0], kernel) and len(calls) == 2
+    monkeypatch.setattr(chain, "BATCHED_FROM", 2)
+    assert torch.equal(chain.chain(prior, context, [2] * 3, model.chain_spec())[0], kernel) and len(calls) == 2
     with pytest.raises(ValueError, match="device must be"):
         world_model.LearnedWorldModel(tokenizer, prior, device="gpu0")
 

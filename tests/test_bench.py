@@ -17,9 +17,6 @@ def test_bench_world_prints_case_figure_values():
     assert proc.returncode == 0, proc.stderr
     figures = json.loads(proc.stdout)["world"]
     assert figures["frames_per_s"] > 0 and figures["stepwise_frames_per_s"] > 0
-    assert figures["speedup_vs_stepwise"] == pytest.approx(
-        figures["frames_per_s"] / figures["stepwise_frames_per_s"], rel=0.01
-    )
 
 
 def test_bench_unknown_name_is_a_clear_error():
@@ -54,8 +51,6 @@ def test_bench_prior_reports_windows_per_second_against_its_baseline():
     results = bench_prior(steps=1, repeats=1, threads=1, presets=("paper",))
     paper = results["paper"]
     assert paper["train_windows_per_s"] > 0 and paper["baseline_windows_per_s"] > 0
-    ratio = paper["train_windows_per_s"] / paper["baseline_windows_per_s"]
-    assert abs(paper["speedup_vs_baseline"] - ratio) < 0.02
 
 
 def test_bench_table_prints_numbers_and_labels(monkeypatch, capsys):
@@ -91,8 +86,6 @@ def test_bench_batched_times_greedy_and_sampled_grids_both_ways():
     assert set(results) == {f"{m}_{kind}_batch2" for m in ("paper", "default") for kind in ("greedy", "sampled")}
     for name, figures in results.items():
         assert figures["kernel_ms_per_grid"] > 0 and figures["batched_ms_per_grid"] > 0
-        ratio = figures["kernel_ms_per_grid"] / figures["batched_ms_per_grid"]
-        assert figures["speedup_vs_kernel"] == pytest.approx(ratio, abs=0.02), name
         assert figures["occupancy_table"] == name.startswith("default_greedy")
 
 
@@ -101,14 +94,9 @@ def test_bench_decoding_times_each_configurations_decoding_draw_and_samples_agai
 
     results = bench_decoding(repeats=1)
     assert set(results) == {"paper", "default"}
-    for name, figures in results.items():
-        assert figures["decode_ratio"] == pytest.approx(
-            figures["decode_plain_ms_per_frame"] / figures["decode_ms_per_frame"], rel=0.02
-        ), name
+    for figures in results.values():
+        assert figures["decode_ms_per_frame"] > 0 and figures["decode_plain_ms_per_frame"] > 0
         assert figures["draw_compiled_ms_per_position"] > 0 and figures["threads"] == 1
     assert results["default"]["codes"] == 4096 and results["paper"]["codes"] == 512
-    paper = results["paper"]  # a DMoL decoder: its samples in blocks against the whole batch's
-    assert paper["samples_ratio"] == pytest.approx(
-        paper["5_samples_whole_ms_per_frame"] / paper["5_samples_blocked_ms_per_frame"], rel=0.02
-    )
-    assert "samples_ratio" not in results["default"]
+    # only the paper's DMoL decoder times its samples in blocks against the whole batch's
+    assert results["paper"]["5_samples_blocked_ms_per_frame"] > 0 and "samples_ratio" not in results["default"]

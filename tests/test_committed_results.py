@@ -2,64 +2,96 @@
 
 Learned rows took hours of evaluation: the committed Table 1 must be what the committed runs add up to (a fresh
 clone has nothing else), every run's manifest must describe its rows, the evaluation must have been played with
-the committed weights, and each model card must describe the weights beside it."""
+the committed weights, and each model card must describe the weights beside it. The runs checked are the folders
+of the store (`datasets/results/runs/*`), whatever they are."""
 
 import hashlib
 import io
 import json
+import re
+from collections import defaultdict
 from pathlib import Path
 
 import pytest
 import torch
 
+from dynplan.evaluation.cases import EVAL_SEED_START, VALIDATION_SEED_START
 from dynplan.evaluation.provenance import world_model_entry
 from dynplan.evaluation.results import results_page
-from dynplan.evaluation.store import ROLES, Run, expected_provenance, runs
-from dynplan.evaluation.table import aggregate, load_results, render_markdown
+from dynplan.evaluation.store import ROLES, Run, case_key, expected_provenance
+from dynplan.evaluation.table import aggregate, load_results, write_table
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "datasets" / "results"
 WEIGHTS = ROOT / "dynplan" / "models" / "weights"
-#: Rows per committed run, as imported from the per-episode result files they replace: nothing may go missing.
-COMMITTED_ROWS = {
-    "evaluation": 5800, "validation": 500, "validation_margin1": 300, "validation_paper_annealed": 200,
-    "validation_paper_continued": 200, "validation_paper_margin1": 200, "validation_paper_margin2": 200,
-    "validation_paper_margin3": 200, "candidate_paper_annealed": 1200, "candidate_paper_margin2": 500,
-    "default_margin0": 1931, "default_epoch7": 1970, "validation_context8": 300, "validation_speed05": 400,
-    "validation_speed05_context8": 400, "validation_context16": 300, "validation_speed05_context16": 400,
-    "validation_marginal8": 300, "validation_speed05_marginal8": 300, "validation_speed05_marginal16": 200,
-    "validation_speed05_oracle": 400, "validation_speed05_span1": 300, "validation_speed05_span2": 300,
-    "validation_span1": 300,
-}  # fmt: skip
+#: Every folder of the store's runs: one without a readable manifest fails, it is not skipped.
+RUNS = sorted(p.name for p in (RESULTS / "runs").iterdir() if p.is_dir())
+_SHA256 = re.compile(r"[0-9a-f]{64}(\+[0-9a-f]{64})*")
 
 
-def test_every_committed_run_is_present_whole():
-    counts = {run.name: len(run.current()) for run in runs(RESULTS)}
-    assert {name: counts.get(name) for name in COMMITTED_ROWS} == COMMITTED_ROWS
+def test_the_store_holds_the_evaluation_run():
+    assert "evaluation" in RUNS
 
 
-@pytest.mark.parametrize("name", sorted(COMMITTED_ROWS))
-def test_a_runs_rows_all_match_its_manifest(name):
+@pytest.mark.parametrize("name", RUNS)
+def test_a_runs_manifest_describes_its_episodes_and_how_they_were_played(name):
+    manifest = Run(RESULTS, name).manifest()  # StoreError: missing, not JSON, or not a dynplan-run/1 manifest
+    assert manifest["name"] == name and manifest["role"] in ROLES and manifest["playouts"] > 0
+    seeds = manifest["episode_seeds"]
+    assert seeds and seeds == sorted(set(seeds))
+    # settings are chosen on the validation episodes, never on the evaluation's
+    first = VALIDATION_SEED_START if manifest["role"] == "validation" else EVAL_SEED_START
+    assert all(first <= s < first + 1_000_000 for s in seeds), (first, seeds[0], seeds[-1])
+    assert set(manifest["log_sha256"]) == {str(s) for s in seeds} and all(manifest["log_sha256"].values())
+    for model, entry in manifest["world_models"].items():
+        assert _SHA256.fullmatch(entry["weights_sha256"]) and isinstance(entry.get("caution", {}), dict), model
+    assert manifest["invocations"]
+    assert all(i["command"].startswith("python -m ") and i["code_version"] for i in manifest["invocations"])
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_every_row_of_a_run_is_played_as_its_manifest_says_and_counts(name):
+    run = Run(RESULTS, name)
+    manifest, rows = run.manifest(), run.rows()
+    assert rows, f"{name}: no episodes"
+    for row in rows:
+        expected = expected_provenance(manifest, row)
+        assert {k: row.get(k) for k in expected} == expected, case_key(row)
+        assert row["seed"] in manifest["episode_seeds"] and row["outcome"] in {"goal", "timeout", "death"}
+        assert row["steps"] == len(row["decision_ms"]) > 0, case_key(row)
+        assert row.get("model") is None or row["model"] in manifest["world_models"], case_key(row)
+    assert len({case_key(r) for r in rows}) == len(rows), f"{name}: a case played twice (a stale row)"
+    # what the store counts (Table 1, the results page, compare): every row, or its provenance rules drifted
+    assert len(run.current()) == len(rows), f"{name}: the store counts {len(run.current())} of {len(rows)} rows"
+
+
+@pytest.mark.parametrize("name", RUNS)
+def test_a_run_plays_each_of_its_cases_on_every_seed(name):
+    """Each (technique, model, speed, k) a run holds covers the manifest's seeds; only a superseded run may stop
+    short (it stopped when its weights or settings were replaced; the results page says `of N`)."""
     run = Run(RESULTS, name)
     manifest = run.manifest()
-    assert manifest["role"] in ROLES and manifest["invocations"]
-    rows = run.rows()
-    assert all(
-        {k: r.get(k) for k in expected_provenance(manifest, r)} == expected_provenance(manifest, r) for r in rows
-    )
-    seeds = {r["seed"] for r in rows}
-    assert seeds <= set(manifest["episode_seeds"]) and len(aggregate(rows)) > 0  # aggregation refuses a mixed row
+    seeds: dict[tuple, set] = defaultdict(set)
+    for row in run.rows():
+        seeds[case_key(row)[:-1]].add(row["seed"])
+    aggregate(run.rows())  # refuses a row of Table 1's shape that mixes provenance
+    if manifest["role"] != "superseded":
+        short = {case: len(s) for case, s in seeds.items() if s != set(manifest["episode_seeds"])}
+        assert not short, f"{name}: cases short of the manifest's {len(manifest['episode_seeds'])} seeds: {short}"
 
 
-def test_table1_is_what_the_evaluation_runs_add_up_to():
-    assert json.loads((RESULTS / "table1.json").read_text()) == aggregate(load_results(RESULTS))
+def test_table1_is_what_the_evaluation_runs_add_up_to(tmp_path):
+    """datasets/results/table1.{json,md}, byte for byte, from the evaluation runs."""
+    json_path, md_path = write_table(aggregate(load_results(RESULTS)), tmp_path)
+    assert json_path.read_bytes() == (RESULTS / "table1.json").read_bytes()
+    assert md_path.read_bytes() == (RESULTS / "table1.md").read_bytes()
 
 
 def test_the_results_page_is_what_its_command_writes():
-    """docs/results.md is generated (`python -m dynplan.evaluation.results`), never edited by hand."""
-    assert (ROOT / "docs" / "results.md").read_text() == results_page(RESULTS, ROOT / "docs")
-    table = (RESULTS / "table1.md").read_text()
-    assert render_markdown(aggregate(load_results(RESULTS))) in table
+    """docs/results.md is generated (`python -m dynplan.evaluation.results`), never edited by hand, and short."""
+    page = (ROOT / "docs" / "results.md").read_text()
+    assert page == results_page(RESULTS, ROOT / "docs")
+    assert len(page.encode()) <= 20_000, "docs/results.md grew past 20 kB: summarise more"
 
 
 def test_the_evaluation_was_played_with_the_committed_weights():
@@ -116,7 +148,7 @@ def test_replaying_committed_rows_reproduces_their_outcomes(tmp_path):
     """The committed evaluation replays exactly: same outcome and steps for the same case, log, weights and
     caution (what any refactor of the planner, the world model or the protocol must keep)."""
     from dynplan.data.collect import record_episode
-    from dynplan.evaluation.cases import EVAL_SEED_START, Case
+    from dynplan.evaluation.cases import Case
     from dynplan.evaluation.protocol import run_case
 
     seeds = [EVAL_SEED_START, EVAL_SEED_START + 1]
@@ -137,13 +169,20 @@ def test_replaying_committed_rows_reproduces_their_outcomes(tmp_path):
 @pytest.mark.parametrize("record", sorted((ROOT / "datasets" / "training").glob("*/provenance.json")),
                          ids=lambda p: p.parent.name)  # fmt: skip
 def test_candidate_records_describe_their_weights(record):
-    """A candidate prior's record (docs/design.md §3.3) names its weights by hash, and its config and last epoch
-    are the exported checkpoint's and its metrics'."""
+    """A candidate prior's record (docs/design.md §3.3) names its weights by hash, and its last epoch is its
+    metrics'. Weights in the tree are the exported checkpoint of the record's config; weights not adopted were
+    taken out of the tree, and the record says at which commit they are."""
     info, folder = json.loads(record.read_text()), record.parent
-    data = (folder / info["weights"]).read_bytes()
+    last = (folder / "metrics.csv").read_text().strip().splitlines()[-1].split(",")
+    assert (int(last[0]), int(last[1])) == (info["epochs"], info["windows_seen"]) and info["commands"]
+    assert re.fullmatch(r"[0-9a-f]{64}", info["sha256"])
+    weights = folder / info["weights"]
+    if info.get("weights_in_tree", True) is False:
+        assert not weights.exists() and re.fullmatch(r"[0-9a-f]{40}", info["weights_commit"])
+        assert info["weights_commit"][:8] in info["weights_note"]
+        return
+    data = weights.read_bytes()
     assert info["sha256"] == hashlib.sha256(data).hexdigest()
     checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
     assert checkpoint["kind"] == info["stage"]
     assert checkpoint["config"] == json.loads((folder / "config.json").read_text())
-    last = (folder / "metrics.csv").read_text().strip().splitlines()[-1].split(",")
-    assert (int(last[0]), int(last[1])) == (info["epochs"], info["windows_seen"])

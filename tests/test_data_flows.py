@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 import zarr
 
+from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.collect import log_path
-from dynplan.data.store import build_frame_store_from_logs, list_logs
+from dynplan.data.store import list_logs
 from dynplan.env import RoadConfig, generate_world
 from dynplan.logs import read_episode_log
 

@@ -91,5 +91,5 @@ def test_deaths_replay_with_the_caution_their_result_records(monkeypatch):
     deaths.death_causes([record, {**record, "occupancy": 0.1}, {**record, "occupancy": 0.1, "margin": 1},
                          {**record, "outcome": "goal"}])  # fmt: skip
     # absent: off (a record without the field), not the configuration's current own
-    off = {"occupancy": 0, "margin": 0, "span": 0}
+    off = {"occupancy": 0, "margin": 0}
     assert seen == [off, {**off, "occupancy": 0.1}, {**off, "occupancy": 0.1, "margin": 1}]

@@ -7,7 +7,7 @@ from gymnasium.utils.env_checker import check_env
 
 import dynplan
 from dynplan.env import FIRST_DECISION_FRAME, GOAL_VALUE, RoadConfig, RoadEnv, World, generate_world
-from dynplan.render import palette
+from dynplan.env.colors import palette
 
 # Action indices (headings −180°, −135°, …, 135°).
 LEFT, DOWN, RIGHT, UP, UP_RIGHT = 0, 2, 4, 6, 5

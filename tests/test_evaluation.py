@@ -190,13 +190,13 @@ def test_results_are_reused_only_for_the_same_playouts_and_log(tmp_path, eval_lo
 
 def test_the_search_never_looks_past_the_timeout_frame(eval_logs):
     from dynplan.planning.episode import run_episode
-    from dynplan.planning.forward import OracleModel
+    from dynplan.planning.forward import ForwardModel, OracleModel
     from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
 
     world = read_episode_log(log_path(eval_logs, EVAL_SEED_START)).world()
     oracle, asked = OracleModel(world), []
 
-    class Spy:
+    class Spy(ForwardModel):
         name = "spy"
 
         def predict(self, observed, k):
@@ -294,9 +294,10 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
             ["--margin", "5"],
             "Caution: margin=5 is invalid (input should be less than or equal to 4); valid range [0, 4]",
         ),
-        (["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"], "--occupancy needs patch-local codes"),
-        (["--techniques", "marginal8", "--models", "paper"], "marginal8 needs patch-local codes"),
-        (["--techniques", "marginal8", "--occupancy", "0"], "which is off for the default configuration"),
+        (
+            ["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"],
+            "occupancy=0.1 needs a tokenizer with patch-local codes (local=True); 'paper' has none",
+        ),
         (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --run"),
         (["--run", "../x"], "--run: run name '../x' is invalid"),
         (["--first-seed", "-1"], "seed"),

@@ -19,13 +19,13 @@ from dynplan.models import checkpoint
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
 from dynplan.models.registry import WORLD_MODELS, WorldModelSpec, register_world_model
 from dynplan.models.vqvae import VQVAE, VQVAEConfig
-from dynplan.planning.forward import Prediction
+from dynplan.planning.forward import ForwardModel, Prediction
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = (ROOT / "docs" / "extending.md").read_text()
 
 
-class Persistence:
+class Persistence(ForwardModel):
     name = "persistence"
 
     def predict(self, observed: np.ndarray, k: int) -> Prediction:

@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dynplan.analysis.context_bound import ContextBoundModel
-from dynplan.analysis.prediction import errors_by_horizon, foreseeable_frames, miss_causes
 from dynplan.env import RoadConfig, generate_world
 from dynplan.env.road import fold_goal, goal_box, round_px
+from dynplan.evaluation.prediction import errors_by_horizon, foreseeable_frames, miss_causes
 from dynplan.models.metrics import frame_errors
 from dynplan.planning.forward import ZeroModel
 

@@ -47,21 +47,19 @@ def test_lockstep_equals_each_episode_alone(technique, model, k):
 
 
 @pytest.mark.slow
-def test_a_finished_episode_leaves_the_batch_without_disturbing_the_others():
+def test_a_finished_episode_leaves_the_batch_without_disturbing_the_others(monkeypatch):
     k = 3
     planners, forwards = zip(*agents("samples5", "paper", k), strict=True)
     batches: list[int] = []
     original = LearnedWorldModel.predict_batch
 
-    def counting(models, observed, ks):
+    def counting(cls, models, observed, ks):
         batches.append(len(models))
         return original(models, observed, ks)
 
-    LearnedWorldModel.predict_batch = staticmethod(counting)
-    try:
-        together = run_episodes(worlds(), planners, forwards, 1.0, k)
-    finally:
-        LearnedWorldModel.predict_batch = staticmethod(original)
+    monkeypatch.setattr(LearnedWorldModel, "predict_batch", classmethod(counting))
+    together = run_episodes(worlds(), planners, forwards, 1.0, k)
+    monkeypatch.undo()
     steps = sorted(r.steps for r in together)
     assert len(set(steps)) > 1, "the episodes should end at different steps"
     assert batches[0] == len(SEEDS) and batches[-1] == 1 and batches == sorted(batches, reverse=True)
@@ -89,7 +87,7 @@ def test_a_batch_of_predictions_equals_each_alone():
 def test_models_of_any_settings_on_one_prior_predict_together_each_observation_once(monkeypatch):
     """Mid, samples, futures and caution on the same weights share one batch: each distinct observation's greedy
     chain is generated once, as long as its longest horizon, and each model still gets what it gets alone."""
-    from dynplan.models import world_model
+    from dynplan.models import chain
 
     frames = [w.frames for w in worlds()]
     off = {"occupancy": 0.0, "margin": 0}
@@ -106,8 +104,8 @@ def test_models_of_any_settings_on_one_prior_predict_together_each_observation_o
     alone = [make().predict(frames[w][: t + 1], k) for make, (_, w, t, k) in zip(build, cases, strict=True)]
     rows: list[int] = []
     for name in ("generate_fast", "generate_batched"):
-        original = getattr(world_model, name)
-        monkeypatch.setattr(world_model, name, lambda m, c, *a, original=original, **kw: rows.append(len(c))
+        original = getattr(chain, name)
+        monkeypatch.setattr(chain, name, lambda m, c, *a, original=original, **kw: rows.append(len(c))
                             or original(m, c, *a, **kw))  # fmt: skip
     together = LearnedWorldModel.predict_batch([make() for make in build], [frames[w][: t + 1] for _, w, t, _ in cases],
                                                [k for *_, k in cases])  # fmt: skip

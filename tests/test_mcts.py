@@ -98,29 +98,27 @@ def test_subtree_is_reused_for_the_next_decision():
     assert carried > 1
     second = agent.act(position + action_deltas(1.0)[first.action], 5, Prediction.from_frames(frames))
     assert second.visits.sum() == carried - 1 + 50  # the old child's visits (less its own expansion) + new ones
-    fresh = planner(k=5, playouts=50, reuse_subtree=False)
+    fresh = planner(k=5, playouts=50)
     fresh.act(position, 4, Prediction.from_frames(frames))
+    fresh.reset()  # forget the tree: the next decision starts from a fresh root
     third = fresh.act(position + action_deltas(1.0)[first.action], 5, Prediction.from_frames(frames))
     assert third.visits.sum() == 49
 
 
-def test_stale_reused_visits_can_lead_into_a_foreseen_death_unless_avoided():
+def test_stale_reused_visits_can_lead_into_a_foreseen_death():
     """The first prediction shows a free run to the goal on the right; the second, after one step right, an
-    obstacle on the next step. The reused subtree's visits (counted on the first) still favour that step."""
+    obstacle on the next step. The reused subtree's visits (counted on the first) still favour that step: the
+    paper's search steps onto the obstacle it can see (docs/experiments.md records a guard against it)."""
     position = np.array([20.0, 20.0])
     before = empty(k=3)
     before[:, 20:22, 23:25] = GOAL_VALUE
     after = before[1:].copy()
     after[0, 20, 22] = 144
-    choices = {}
-    for avoid in (False, True):
-        agent = planner(k=3, playouts=100, avoid_foreseen_deaths=avoid)
-        first = agent.act(position, 4, Prediction.from_frames(before))
-        assert first.action == RIGHT
-        second = agent.act(position + action_deltas(1.0)[RIGHT], 5, Prediction.from_frames(after))
-        choices[avoid] = landing(position + action_deltas(1.0)[RIGHT], second.action)
-    assert after[0][tuple(choices[False])] == 144  # the paper's search steps onto the obstacle it can see
-    assert after[0][tuple(choices[True])] != 144
+    agent = planner(k=3, playouts=100)
+    first = agent.act(position, 4, Prediction.from_frames(before))
+    assert first.action == RIGHT
+    second = agent.act(position + action_deltas(1.0)[RIGHT], 5, Prediction.from_frames(after))
+    assert after[0][tuple(landing(position + action_deltas(1.0)[RIGHT], second.action))] == 144
 
 
 def test_same_seed_same_decisions():

@@ -72,88 +72,6 @@ def test_training_loss_equals_the_cross_entropy_of_the_logits(model):
     assert out.accuracy == (logits.argmax(1) == target).float().mean()
 
 
-def test_a_weighted_loss_is_the_weighted_mean_of_the_positions_cross_entropies(model):
-    """`goal_weight`'s loss: all weights alike is the plain loss; one position's weight dominating gives its own."""
-    import torch.nn.functional as F
-
-    context, target = torch.randint(0, 16, (3, 4, 6, 6)), torch.randint(0, 16, (3, 6, 6))
-    plain = model(context, target)
-    torch.testing.assert_close(model(context, target, torch.full((3, 6, 6), 7.0)).loss, plain.loss)
-    weight = torch.ones(3, 6, 6)
-    weight[1, 2, 4] = 11.0
-    nll = F.cross_entropy(plain.logits, target, reduction="none")
-    expected = (nll.sum() + 10.0 * nll[1, 2, 4]) / weight.sum()
-    torch.testing.assert_close(model(context, target, weight).loss, expected)
-
-
-def test_goal_codes_are_the_codes_that_draw_the_goal():
-    """The committed default tokenizer: the codes of a frame's goal patches are flagged, the empty road's is not,
-    and a context-seeing tokenizer (no patch of its own per code) is refused."""
-    import numpy as np
-
-    from dynplan.env.config import GOAL_VALUE, RoadConfig
-    from dynplan.env.road import generate_world
-    from dynplan.models.checkpoint import load_vqvae_checkpoint
-    from dynplan.models.vqvae import VQVAE, VQVAEConfig
-    from dynplan.models.world_model import world_model_paths
-    from dynplan.training.pixelcnn import goal_codes
-
-    tokenizer = load_vqvae_checkpoint(world_model_paths("default")[0])
-    flags = goal_codes(tokenizer)
-    frames = generate_world(RoadConfig(), 7).frames[::50]
-    codes = torch.as_tensor(tokenizer.encode(frames)).long()
-    ph, pw = tokenizer.patch
-    h, w = codes.shape[1:]
-    goal_patch = torch.from_numpy((frames == GOAL_VALUE).reshape(len(frames), h, ph, w, pw).any(axis=(2, 4)))
-    decoded_goal = torch.from_numpy(np.asarray(tokenizer.decode(codes)) == GOAL_VALUE)
-    decoded_goal = decoded_goal.reshape(len(frames), h, ph, w, pw).any(dim=4).any(dim=2)
-    assert torch.equal(flags[codes], decoded_goal)
-    assert goal_patch.any() and (flags[codes] == goal_patch).float().mean() > 0.99
-    empty = int(tokenizer.encode(np.zeros((1, 48, 48), np.uint8))[0, 0, 0])
-    assert not flags[empty]
-    context_seeing = VQVAE(VQVAEConfig(channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16))
-    with pytest.raises(ValueError, match="patch-local"):
-        goal_codes(context_seeing)
-
-
-def test_the_lane_convolution_reaches_along_the_row_and_starts_as_the_prior_without_it():
-    """The conditioning of position (2, 1) sees the context 2 codes along its row without `lane_kernel`, and
-    1 + `lane_kernel` // 2 with it, on no more rows; it starts at zero, so a prior grown from one without it conditions
-    alike."""
-    torch.manual_seed(0)
-    plain = ConditionalPixelCNN(SMALL)
-    lane = ConditionalPixelCNN(SMALL.model_copy(update={"lane_kernel": 7}))
-    lane.load_state_dict({**lane.state_dict(), **plain.state_dict()})
-    context = torch.randint(0, 16, (1, 4, 6, 10))
-    torch.testing.assert_close(lane.condition(context), plain.condition(context), atol=0, rtol=0)
-
-    def reach(model: ConditionalPixelCNN) -> torch.Tensor:
-        """(h, w) bool: the context positions whose codes move the conditioning at (2, 1)."""
-        base = model.condition(context)[0, :, 2, 1]
-        moved = torch.zeros(6, 10, dtype=torch.bool)
-        for i in range(6):
-            for j in range(10):
-                other = context.clone()
-                other[:, :, i, j] = (other[:, :, i, j] + 1) % 16
-                moved[i, j] = not torch.equal(model.condition(other)[0, :, 2, 1], base)
-        return moved
-
-    with torch.no_grad():
-        lane.lane.weight.normal_()
-    assert reach(plain)[2].nonzero().max() == 1 + 2 and reach(lane)[2].nonzero().max() == 1 + 1 + 7 // 2
-    assert torch.equal(reach(lane).any(1), reach(plain).any(1))  # along the row, on the rows it saw before
-    # A wider lane convolution grown from a narrower one keeps its taps centred: the same conditioning.
-    wider = ConditionalPixelCNN(SMALL.model_copy(update={"lane_kernel": 9}))
-    state = wider.state_dict()
-    for name, value in lane.state_dict().items():
-        if not wider.place_warm_start(name, value, state[name]):
-            state[name].copy_(value)
-    wider.load_state_dict(state)
-    torch.testing.assert_close(wider.condition(context), lane.condition(context))
-    with pytest.raises(ConfigError, match="lane_kernel must be odd"):
-        PixelCNNConfig(lane_kernel=4)
-
-
 def test_codebook_init_keeps_the_codebook_geometry():
     """Embeddings started from the codebook: distances between codes are the codebook's, up to one scale."""
     torch.manual_seed(0)
@@ -178,7 +96,8 @@ def test_config_errors():
 def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_logs):
     import numpy as np
 
-    from dynplan.data.store import build_frame_store_from_logs, list_logs
+    from dynplan.data.build import build_frame_store_from_logs
+    from dynplan.data.store import list_logs
     from dynplan.models.checkpoint import load_pixelcnn_checkpoint
     from dynplan.models.vqvae import VQVAEConfig
     from dynplan.training.codes import build_codes
@@ -224,23 +143,6 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     assert "optimiser" not in state and state["epoch"] == 2
     snapshot = load_pixelcnn_checkpoint(exported).state_dict()
     assert all(torch.equal(v, load_pixelcnn_checkpoint(path).state_dict()[k]) for k, v in snapshot.items())
-    # A longer context from those weights: at the start it predicts exactly as the source did from its last four
-    # frames (the older frames' conditioning weights start at zero); one epoch on padded windows then moves them.
-    source = load_pixelcnn_checkpoint(exported)
-    longer = config.model_copy(update={"context": 7, "learning_rate": 1e-9})
-    grown = load_pixelcnn_checkpoint(train_pixelcnn(store, "codes_tiny", tmp_path / "longer", longer, TrainBudget(
-        epochs=1, steps_per_epoch=2, val_frames=8, threads=1, init_from=str(exported))))  # fmt: skip
-    assert grown.config.context == 7
-    first = grown.conditioner[0].weight[:, : 3 * config.embed_dim]
-    assert 0 < first.abs().max() < 1e-6  # barely moved from zero by a vanishing rate
-    contexts = torch.randint(0, 16, (5, 7, 6, 6), generator=torch.Generator().manual_seed(0))
-    torch.testing.assert_close(grown.condition(contexts), source.condition(contexts[:, 3:]), atol=1e-4, rtol=0)
-    # A lane convolution grown onto the same weights starts at zero: the prior conditions as its source did.
-    wider = config.model_copy(update={"lane_kernel": 5, "learning_rate": 1e-9})
-    laned = load_pixelcnn_checkpoint(train_pixelcnn(store, "codes_tiny", tmp_path / "lane", wider, TrainBudget(
-        epochs=1, steps_per_epoch=2, val_frames=8, threads=1, init_from=str(exported))))  # fmt: skip
-    assert 0 < laned.lane.weight.abs().max() < 1e-6
-    torch.testing.assert_close(laned.condition(contexts[:, 3:]), source.condition(contexts[:, 3:]), atol=1e-4, rtol=0)
 
 
 @pytest.mark.parametrize(("seed", "K", "grid", "batch"), [(0, 16, 6, 1), (1, 64, 6, 3), (2, 32, 12, 2), (3, 16, 5, 1)])

@@ -67,12 +67,12 @@ def test_the_imagination_rolls_the_model_forward_and_gives_the_world_back(tmp_pa
 
 
 def test_an_agent_is_judged_on_the_imagined_frames():
-    class Wall:
+    from dynplan.planning.forward import ForwardModel, Prediction
+
+    class Wall(ForwardModel):
         name = "wall"
 
         def predict(self, observed, k):
-            from dynplan.planning.forward import Prediction
-
             return Prediction.from_frames(np.full((k, 48, 48), 100, np.uint8))  # an obstacle everywhere
 
     state = PlayState(generate_world(RoadConfig(), SEED), imagination=Wall())

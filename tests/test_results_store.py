@@ -14,7 +14,6 @@ import pytest
 
 from dynplan.data.collect import record_episode
 from dynplan.evaluation.cases import EVAL_SEED_START
-from dynplan.evaluation.legacy import import_folder
 from dynplan.evaluation.store import Run, StoreError, TornRowWarning, evaluation_rows
 from dynplan.evaluation.table import aggregate
 
@@ -155,30 +154,6 @@ def test_dask_workers_neither_lose_nor_duplicate_rows(tmp_path, dask_cluster):
         where = {client.who_has(f)[f.key][0] for f in futures if client.who_has(f).get(f.key)}
     assert sum(added) == 60 and len(where) == 2  # both workers appended
     assert sorted(r["seed"] for r in run.rows()) == seeds
-
-
-def test_legacy_result_folders_import_with_their_provenance(tmp_path):
-    legacy = tmp_path / "old"
-    records = [row(EVAL_SEED_START + i, technique="samples5", model="default", occupancy=0.1) for i in range(3)]
-    records.append(row(EVAL_SEED_START))
-    for r in records:
-        group = f"{r['technique']}-{r['model']}" if r["model"] else r["technique"]
-        path = legacy / "episodes" / group / "speed1_k3" / f"seed{r['seed']}.json"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(r))
-    run = Run(tmp_path / "store", "evaluation")
-    assert import_folder(legacy, run, "evaluation", ["python -m flows.evaluate"]) == 4
-    manifest = run.manifest()
-    assert manifest["world_models"]["default"] == {"weights_sha256": "w1", "weights": [], "caution": {"occupancy": 0.1}}
-    assert len(run.current()) == 4 and aggregate(run.current()) == aggregate(records)
-    with pytest.raises(StoreError, match="exists already"):
-        import_folder(legacy, run, "evaluation", [])
-    path.write_text(json.dumps({**records[0], "seed": EVAL_SEED_START + 7, "margin": 2}))
-    with pytest.raises(StoreError, match="mix default caution"):
-        import_folder(legacy, Run(tmp_path / "store", "again"), "candidate", [])
-    path.write_text(json.dumps({k: v for k, v in records[0].items() if k not in ("seed", "log_sha256")}))
-    with pytest.raises(StoreError, match=f"{path}: not a per-episode result: it lacks seed, log_sha256"):
-        import_folder(legacy, Run(tmp_path / "store", "third"), "candidate", [])
 
 
 @pytest.mark.slow

@@ -9,9 +9,10 @@ import torch
 import xarray as xr
 import zarr
 
+from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.collect import log_path, record_episode
 from dynplan.data.datasets import FrameDataset, WindowDataset, is_validation
-from dynplan.data.store import build_frame_store_from_logs, list_logs
+from dynplan.data.store import list_logs
 from dynplan.env import RoadConfig, generate_world
 from dynplan.logs import LogError, read_episode_log
 
@@ -94,7 +95,7 @@ def test_corrupt_and_mismatched_logs_are_reported_and_skipped(tmp_path, recorded
 
 
 def test_interrupted_append_is_rolled_back(tmp_path, recorded_logs, monkeypatch):
-    import dynplan.data.store as store_module
+    import dynplan.data.build as store_module
 
     store = tmp_path / "frames.zarr"
     logs = list_logs(recorded_logs)

@@ -12,9 +12,10 @@ import pytest
 import xarray as xr
 import zarr
 
+from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.chunks import ChunkError
 from dynplan.data.datasets import FrameDataset
-from dynplan.data.store import ARRAYS, build_frame_store_from_logs, fingerprint, list_logs, lock_path
+from dynplan.data.store import ARRAYS, fingerprint, list_logs, lock_path
 from dynplan.data.verify import verify_store
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -139,7 +140,7 @@ def test_verify_command_reports_then_repairs(store, recorded_logs):
 
 
 def test_plain_readers_never_see_an_unfinished_append(tmp_path, recorded_logs, monkeypatch):
-    import dynplan.data.store as store_module
+    import dynplan.data.build as store_module
 
     store = tmp_path / "frames.zarr"
     logs = list_logs(recorded_logs)
@@ -165,7 +166,8 @@ def test_plain_readers_never_see_an_unfinished_append(tmp_path, recorded_logs, m
     assert verify_store(store).damage == []
 
 
-BUILD = "from dynplan.data.store import build_frame_store_from_logs as b, list_logs as l\nimport sys\n" \
+BUILD = "from dynplan.data.build import build_frame_store_from_logs as b\n" \
+        "from dynplan.data.store import list_logs as l\nimport sys\n" \
         "r = b(sys.argv[1], l(sys.argv[2])); print(\"added\", len(r.added), r.episodes)"  # fmt: skip
 
 

@@ -6,7 +6,8 @@ import builtins
 import pytest
 import torch
 
-from dynplan.data.store import build_frame_store_from_logs, list_logs
+from dynplan.data.build import build_frame_store_from_logs
+from dynplan.data.store import list_logs
 from dynplan.models.pixelcnn import PixelCNNConfig
 from dynplan.models.vqvae import VQVAEConfig
 from dynplan.training.codes import build_codes

@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from dynplan.config import ConfigError
+from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.datasets import FrameDataset
 from dynplan.data.patches import distinct_patches
-from dynplan.data.store import build_frame_store_from_logs, list_logs
+from dynplan.data.store import list_logs
 from dynplan.env import RoadConfig, generate_world
 from dynplan.models.checkpoint import CheckpointError, load_vqvae_checkpoint
 from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, snap_tensor, to_unit, value_index

@@ -15,9 +15,9 @@ import torch
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.cases import EVAL_SEED_START
+from dynplan.models.caution import merge_samples
 from dynplan.models.checkpoint import VQVAE_KIND, cached
 from dynplan.models.metrics import frame_errors
-from dynplan.models.world_model import merge_samples
 
 
 def held_out_errors(checkpoint: str | os.PathLike, episodes: int = 20, samples: int = 5) -> dict[str, float]:

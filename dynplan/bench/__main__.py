@@ -22,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.name not in with_device:
             parser.error(f"--device: the {args.name} benchmark runs on the CPU only; --device applies to "
                          f"{', '.join(with_device)}")  # fmt: skip
-        from dynplan.models.world_model import check_device
+        from dynplan.models.device import check_device
 
         try:
             options["device"] = check_device(args.device)

@@ -8,8 +8,9 @@ import tempfile
 import time
 from pathlib import Path
 
+from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.collect import record_episode
-from dynplan.data.store import build_frame_store_from_logs, list_logs
+from dynplan.data.store import list_logs
 
 
 def _folder_bytes(folder: Path) -> int:

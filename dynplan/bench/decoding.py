@@ -19,9 +19,10 @@ import torch
 
 from dynplan.bench.timing import median_seconds
 from dynplan.models.batched import BLOCK_ROWS, _pick
+from dynplan.models.device import one_thread
 from dynplan.models.generation import draw_rows
 from dynplan.models.registry import WORLD_MODELS
-from dynplan.models.world_model import load_world_model, one_thread
+from dynplan.models.world_model import load_world_model
 
 #: Frames decoded per timed call: one lockstep step's 5 futures × 10 frames for a dozen episodes.
 FRAMES = 640

@@ -81,7 +81,7 @@ def bench_batched(batches: tuple[int, ...] = BATCHES, repeats: int = 5, threads:
     for name in ("paper", "default"):
         model = load_world_model(model=name)
         prior, (h, w) = model.prior, model.tokenizer.config.grid
-        table = model.code_obstacles() if model.occupancy else None
+        table = model.code_obstacles() if model.caution.occupancy else None
         lookup = None if table is None else table.numpy()
         kernel, batched = kernel_weights(prior), batched_weights(prior)
         for B in batches:

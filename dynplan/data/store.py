@@ -26,25 +26,20 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import dask
-import dask.array as da
 import numpy as np
 import zarr
 
-from dynplan.data.chunks import COMPRESSORS, commit_rows, read, staged, write_rows
-from dynplan.env.config import FREE, GOAL_VALUE, obstacle_classes
-from dynplan.files import exclusive
+from dynplan.data.chunks import read
 from dynplan.logs.reader import LogError, read_episode_log
 
 STORE_FORMAT = "dynplan.frames"
 #: 2: checksummed chunks; 1 (without checksums) is read but no longer extended.
 STORE_VERSION = "2"
-#: Episodes appended per dask computation (bounds memory: 64 × 407 × 48 × 48 B ≈ 60 MB).
+#: Episodes per chunk of `goal`, and appended per dask computation (bounds memory: 64 × 407 × 48 × 48 B ≈ 60 MB).
 BATCH_EPISODES = 64
 
 ARRAYS = ("frames", "goal", "seed", "log_name", "log_sha256")
@@ -74,22 +69,6 @@ class LogInfo:
     @property
     def name(self) -> str:
         return Path(self.path).name
-
-
-@dataclass
-class BuildReport:
-    """Outcome of a build: logs appended, skipped (already in the store) and failed (path → reason)."""
-
-    store: str
-    episodes: int
-    added: list[str] = field(default_factory=list)
-    skipped: list[str] = field(default_factory=list)
-    failed: dict[str, str] = field(default_factory=dict)
-    repaired: list[str] = field(default_factory=list)
-
-    def to_dict(self) -> dict:
-        return {"store": self.store, "episodes": self.episodes, "added": self.added, "skipped": self.skipped,
-                "failed": self.failed, "repaired": self.repaired}  # fmt: skip
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -155,30 +134,6 @@ def list_logs(log_dir: str | os.PathLike) -> list[Path]:
     return sorted(p for p in log_dir.glob("*.mcap") if p.is_file())
 
 
-def _geometry(info: LogInfo) -> dict:
-    return {"config": info.config, "n_frames": info.n_frames, "height": info.height, "width": info.width}
-
-
-def _create(group: zarr.Group, first: LogInfo) -> None:
-    T, H, W = first.n_frames, first.height, first.width
-    from dynplan.version import __version__
-
-    group.attrs.update(
-        episodes=0,
-        format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **_geometry(first),
-        pixel_values={"free": FREE, "goal": GOAL_VALUE, **{c.name: c.value for c in obstacle_classes(W)}},
-        y_axis="row 0 is the bottom of the world",
-    )  # fmt: skip
-    # overwrite=True: a first build killed half-way through creating these is simply started again.
-    options = {"compressors": COMPRESSORS, "overwrite": True}
-    group.create_array("frames", shape=(0, T, H, W), chunks=(1, T, H, W), dtype="uint8",
-                       dimension_names=("episode", "time", "y", "x"), **options)  # fmt: skip
-    group.create_array("goal", shape=(0, T, 2), chunks=(BATCH_EPISODES, T, 2), dtype="float64",
-                       dimension_names=("episode", "time", "yx"), **options)  # fmt: skip
-    for name, dtype in (("seed", "int64"), ("log_name", str), ("log_sha256", str)):
-        group.create_array(name, shape=(0,), chunks=(1024,), dtype=dtype, dimension_names=("episode",), **options)
-
-
 def committed(group: zarr.Group) -> int:
     """Episodes committed to the store: the `episodes` attribute, written after each appended batch."""
     return int(group.attrs.get("episodes", 0)) if "log_sha256" in group else 0
@@ -210,98 +165,3 @@ def fingerprint(store: str | os.PathLike) -> str:
     group = zarr.open_group(str(store), mode="r", use_consolidated=False)
     parts = [group.attrs.get("config"), group.attrs.get("n_frames"), committed_checksums(store)]
     return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()
-
-
-def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> BuildReport:
-    """Append the logs described by `infos` (from `inspect_for_store`) to the Zarr group at `store`, under the
-    store's lock; the episodes of logs already in are checked and, if damaged, repaired from those logs.
-
-    Frames are copied with dask, one task per episode chunk, on whatever dask scheduler is active (a
-    `distributed.Client` if one is, threads otherwise). Writes nothing when every log is already in, intact.
-    """
-    store = str(store)
-    problem = store_problem(store)
-    if problem:
-        raise ValueError(problem)
-    with exclusive(lock_path(store), waiting=f"{store}: another build or repair holds the store"):
-        return _build_locked(store, infos)
-
-
-def _build_locked(store: str, infos: Sequence[LogInfo]) -> BuildReport:
-    from dynplan.data.verify import verify_store  # verify builds on this module
-
-    report = BuildReport(store, episodes=0)
-    if committed_rows(store):  # check what is in before relying on it, repairing from these logs
-        checked = verify_store(store, [info for info in infos if not info.error], lock=False)
-        report.repaired = [d.describe() for d in checked.damage if d.repaired]
-        report.failed.update({f"{store}/{d.array}/{d.chunk}": d.describe() for d in checked.unrepaired})
-        if checked.unrepaired:
-            return report
-    known = set(committed_checksums(store))
-    report.episodes = len(known)
-    new: dict[str, LogInfo] = {}
-    for info in infos:
-        if info.error:
-            report.failed[info.path] = info.error
-        elif info.sha256 in known or info.sha256 in new:
-            report.skipped.append(info.path)
-        else:
-            new[info.sha256] = info
-    if not new:
-        return report
-
-    # Consolidated metadata may be stale after an interrupted append: write against the arrays' own metadata.
-    group = zarr.open_group(store, mode="a", zarr_format=3, use_consolidated=False)
-    pending = sorted(new.values(), key=lambda i: (i.seed, i.name))
-    if committed(group) == 0:
-        _create(group, pending[0])
-    n = committed(group)
-    expected = {k: group.attrs[k] for k in ("config", "n_frames", "height", "width")}
-    seeds = {int(seed): str(name) for seed, name in zip(group["seed"][:n], group["log_name"][:n], strict=True)}
-    accepted = []
-    for info in pending:
-        if info.kind != "world":
-            report.failed[info.path] = f"{info.path}: a log of kind {info.kind!r} (a replay), not a recorded world"
-        elif _geometry(info) != expected:
-            report.failed[info.path] = (
-                f"{info.path}: recorded as {_geometry(info)}, but the store holds {expected}; use another store"
-            )
-        elif info.seed in seeds:
-            report.failed[info.path] = f"{info.path}: seed {info.seed} is already in the store ({seeds[info.seed]})"
-        else:
-            seeds[info.seed] = info.name
-            accepted.append(info)
-
-    for name in ARRAYS:  # roll back an interrupted append
-        commit_rows(group[name], n)
-    T, H, W = expected["n_frames"], expected["height"], expected["width"]
-    for start in range(0, len(accepted), BATCH_EPISODES):
-        batch = accepted[start : start + BATCH_EPISODES]
-        k = len(batch)
-        frames = da.stack([da.from_delayed(dask.delayed(load_frames)(i.path), (T, H, W), np.uint8) for i in batch])
-        da.store(frames, staged(group["frames"], n + k), regions=(slice(n, n + k),), lock=False)
-        write_rows(group["goal"], n, np.stack([i.goal for i in batch]))
-        write_rows(group["seed"], n, np.array([i.seed for i in batch], dtype=np.int64))
-        write_rows(group["log_name"], n, np.array([i.name for i in batch]))
-        write_rows(group["log_sha256"], n, np.array([i.sha256 for i in batch]))
-        for name in ARRAYS:  # every row up to n + k is written: show it
-            commit_rows(group[name], n + k)
-        n += k
-        group.attrs["episodes"] = n  # the commit: everything up to n is complete
-        report.added.extend(i.path for i in batch)
-    report.episodes = n
-    _consolidate(store)
-    return report
-
-
-def _consolidate(store: str) -> None:
-    """Consolidate metadata so that xarray opens the store in one read (zarr-python supports it for v3)."""
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
-        zarr.consolidate_metadata(store)
-
-
-def build_frame_store_from_logs(store: str | os.PathLike, logs: Sequence[str | os.PathLike]) -> BuildReport:
-    """Inspect `logs` in parallel with dask, then append the new ones to `store`."""
-    infos = dask.compute(*[dask.delayed(inspect_for_store)(str(p)) for p in logs])
-    return build_frame_store(store, infos)

@@ -16,6 +16,7 @@ from dynplan.env.agent import (
     judge,
     reward_of,
 )
+from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World, generate_world, round_px
 
@@ -143,8 +144,6 @@ class RoadEnv(gym.Env[dict, np.int64]):
         if self.render_mode is None:
             gym.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' to make().")
             return None
-        from dynplan.render import colorize
-
         return colorize(self.world.frames[self.t], self.position)
 
     def _obs(self) -> dict:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from dynplan.env.agent import FIRST_DECISION_FRAME
+from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, learned_model, technique
 from dynplan.logs.format import step_row
@@ -25,7 +26,7 @@ from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import Prediction
 from dynplan.planning.mcts import Decision, MCTSConfig, MCTSPlanner, RandomPlanner
-from dynplan.render import colorize, error_image, side_by_side, write_gif
+from dynplan.render import error_image, side_by_side, write_gif
 
 
 def planners() -> list[str]:

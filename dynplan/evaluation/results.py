@@ -1,8 +1,8 @@
 """`python -m dynplan.evaluation.results`: write Table 1 and the results page from the results store.
 
 Writes `datasets/results/table1.{json,md}` (from the evaluation runs), `docs/results.md` (Table 1 beside the paper,
-prediction error against the horizon, Figure 1, the causes of the learned agents' deaths, and every validation,
-candidate and superseded run) and the Table 1 block of README.md. Everything on the page comes from files of the
+one table of every validation, candidate and superseded run, prediction error against the horizon, Figure 1 and the
+causes of the learned agents' deaths) and the Table 1 block of README.md. Everything on the page comes from files of the
 store; the page is regenerated, never edited (a test compares it with what this command writes).
 """
 
@@ -13,20 +13,17 @@ import json
 import os
 from pathlib import Path
 
-from dynplan.evaluation.store import ROLES, runs
+from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.files import write_bytes_atomic
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python -m dynplan.evaluation.results"
+PREDICTION = "python -m dynplan.analysis.prediction"
 README_MARKER = "<!-- table1: generated from datasets/results/table1.md -->"
-#: What each role's section says.
-ROLE_TITLES = {
-    "validation": "Validation runs: where each setting was chosen (seeds 2,000,000…)",
-    "candidate": "Candidate runs: weights or settings replayed on the evaluation episodes, not adopted",
-    "superseded": "Superseded evaluations: the rows of weights or settings committed before the current ones",
-}
 HORIZONS = (1, 3, 5, 10)
+#: The causes of a death, as `dynplan.analysis.deaths` counts them.
+DEATH_CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
 
 
 def _pct(x: float) -> str:
@@ -39,26 +36,20 @@ def _caution(entry: dict) -> str:
 
 def prediction_section(results: Path, docs: Path) -> list[str]:
     lines = ["## Prediction error against the horizon", "",
-             "Obstacle false negatives (% of true obstacle pixels), false positives (% of free pixels) and the goal's "
-             "error (pixels between centres) of each world model's prediction k steps ahead, from 4 observed frames, "
-             "over 10 decision points of each of the first 10 evaluation episodes (seeds 1,000,000…). `mid` is the "
-             "greedy code future decoded to its most likely frame; `N samples` merges N decoded samples; `N futures` "
-             "merges N code futures sampled from the prior; occupancy and margin are the default configuration's "
-             "caution (docs/protocol.md §2). A *context bound, N frames* places each obstacle on the road at the "
-             "decision, and the goal, where their rounded positions over the last N frames most probably put them "
-             "(`dynplan.analysis.context_bound`): the best a single predicted future from N frames can do.",
-             ""]  # fmt: skip
+             "Each world model's prediction k steps ahead from 4 observed frames, at 10 decision points of each of 10 "
+             "episodes from the seed the title gives: obstacle false negatives / false positives (% of obstacle / "
+             "free pixels) and the goal's error (pixels between centres); the title gives the *floor*, the false "
+             "negatives no model of the past can avoid (the future repainted with only the obstacles on the road at "
+             "the decision). `mid`: the greedy code future decoded to its most likely frame; `N samples`: "
+             "N decoded samples merged; `N futures`: N code futures sampled from the prior, merged; occupancy and "
+             "margin: the caution (docs/protocol.md §2). A *context bound, N frames* places each obstacle on the "
+             "road, and the goal, where their rounded positions over the last N frames most probably put them "
+             "(`dynplan.analysis.context_bound`): the best one predicted future from N frames can do. Each file "
+             "splits the false negatives by cause: `fn_unforeseeable` (not on the road at the decision), "
+             "`fn_displaced` (a predicted obstacle within 2 pixels along its lane), `fn_lost` (the rest). A title "
+             f"gives the options of `{PREDICTION}` that wrote the file.", ""]  # fmt: skip
     for path in sorted(results.glob("prediction_*.json")):
-        curves = json.loads(path.read_text())["curves"]
-        header = " | ".join(f"k = {k}: FN / FP, goal" for k in HORIZONS)
-        lines += [f"`{os.path.relpath(path, ROOT)}`:", "", f"| prediction | {header} |",
-                  "|" + " --- |" * (1 + len(HORIZONS))]  # fmt: skip
-        for name, c in curves.items():
-            cells = [f"{_pct(c['fn_rate'][k - 1])} / {_pct(c['fp_rate'][k - 1])}, {c['goal_error_px'][k - 1]:.2f}"
-                     for k in HORIZONS]  # fmt: skip
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
-        lines += ["", "Commands: " + "; ".join(sorted({f"`{c['command']}`" for c in curves.values()})), ""]
-        lines += _causes_table(curves)
+        lines += _prediction_table(path, json.loads(path.read_text())["curves"])
         model = path.stem.removeprefix("prediction_")
         plot = results / f"prediction_error_{model}.png"
         if plot.exists():
@@ -66,22 +57,22 @@ def prediction_section(results: Path, docs: Path) -> list[str]:
     return lines
 
 
-def _causes_table(curves: dict[str, dict]) -> list[str]:
-    """The false negatives of each curve by cause against the floor (`analysis.prediction.miss_causes`)."""
-    measured = {name: c for name, c in curves.items() if "floor_fn_rate" in c}
-    if not measured:
-        return []
-    floor = next(iter(measured.values()))["floor_fn_rate"]
-    lines = ["False negatives by cause (% of true obstacle pixels): *unforeseeable* (the obstacle had not entered the "
-             "road at the decision), *displaced* (a predicted obstacle within 2 pixels along its lane), *lost* (the "
-             "rest); the false-negative rate is their sum, shown as a multiple of the floor — the share no model of "
-             "the past can foresee (the future repainted with only the obstacles on the road at the decision).", "",
-             "| prediction | " + " | ".join(f"k = {k}: unforeseeable / displaced / lost (× floor)" for k in HORIZONS)
-             + " |", "|" + " --- |" * (1 + len(HORIZONS)),
-             "| floor | " + " | ".join(_pct(floor[k - 1]) for k in HORIZONS) + " |"]  # fmt: skip
-    for name, c in measured.items():
-        cells = [f"{_pct(c['fn_unforeseeable'][k - 1])} / {_pct(c['fn_displaced'][k - 1])} / "
-                 f"{_pct(c['fn_lost'][k - 1])} ({c['fn_rate'][k - 1] / max(floor[k - 1], 1e-9):.1f}×)"
+def _prediction_title(path: Path, curves: dict[str, dict]) -> str:
+    """A file's name, first seed, floor (where measured) and commands (without `PREDICTION` where they start so)."""
+    seeds = sorted({c["first_seed"] for c in curves.values() if "first_seed" in c})
+    floors = [c["floor_fn_rate"] for c in curves.values() if "floor_fn_rate" in c]
+    facts = [f"seeds {', '.join(f'{s:,}' for s in seeds)}…"] if seeds else []
+    facts += [f"floor {'/'.join(_pct(floors[0][k - 1]) for k in HORIZONS)}"] if floors else []
+    commands = sorted({c["command"].removeprefix(PREDICTION + " ") for c in curves.values()})
+    return f"`{os.path.relpath(path, ROOT)}` ({'; '.join(facts)}): " + "; ".join(f"`{c}`" for c in commands)
+
+
+def _prediction_table(path: Path, curves: dict[str, dict]) -> list[str]:
+    """One file's curves: a row per prediction, a cell per horizon."""
+    header = "| prediction | " + " | ".join(f"k = {k}" for k in HORIZONS) + " |"
+    lines = [_prediction_title(path, curves), "", header, "|" + " --- |" * (1 + len(HORIZONS))]
+    for name, c in curves.items():
+        cells = [f"{_pct(c['fn_rate'][k - 1])}/{_pct(c['fp_rate'][k - 1])}, {c['goal_error_px'][k - 1]:.2f}"
                  for k in HORIZONS]  # fmt: skip
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return [*lines, ""]
@@ -103,54 +94,112 @@ def deaths_section(results: Path) -> list[str]:
     files = sorted(results.glob("deaths_*.json"))
     if not files:
         return []
+    ks = sorted({s["k"] for path in files for s in json.loads(path.read_text())["summary"]})
     lines = ["## Why the learned agents die", "",
              "Each death replayed and classified (`python -m dynplan.analysis.deaths --technique T --model M "
-             "--agent-speed S [--run RUN] --out FILE`): *off_grid*; *foreseen* (the prediction showed the obstacle); "
-             "*spawned* (it entered the road after the decision, so no model could foresee it); *displaced* (predicted "
-             "a few pixels off along its lane); *lost* (not predicted at all).", ""]  # fmt: skip
-    causes = ("off_grid", "foreseen", "spawned", "displaced", "lost")
-    lines += ["| file | agent | k | episodes | deaths | " + " | ".join(causes) + " |",
-              "|" + " --- |" * (5 + len(causes))]  # fmt: skip
+             "--agent-speed S [--run RUN] --out FILE`, written to `datasets/results/deaths_*.json`): *off_grid*; "
+             "*foreseen* (the prediction showed the obstacle); *spawned* (it entered the road after the decision, so "
+             "no model could foresee it); *displaced* (predicted a few pixels off along its lane); *lost* (not "
+             f"predicted at all). Cells: deaths of the episodes (`of N`: other than the line's), then by cause, "
+             f"{'/'.join(DEATH_CAUSES)}.", "",
+             "| file `deaths_…` | agent | episodes | " + " | ".join(f"k = {k}" for k in ks) + " |",
+             "|" + " --- |" * (3 + len(ks))]  # fmt: skip
     for path in files:
         data = json.loads(path.read_text())
+        by_k = {s["k"]: s for s in data["summary"]}
+        episodes = max(s["episodes"] for s in by_k.values())
         model = f" [{data['model']}]" if data.get("model") else ""
         agent = f"{data['agent_speed'] * 2:g}× {data['technique']}{model}"
-        for s in data["summary"]:
-            lines.append(f"| `{path.name}` | {agent} | {s['k']} | {s['episodes']} | {s['deaths']} | "
-                         + " | ".join(str(s.get(c, 0)) for c in causes) + " |")  # fmt: skip
+        cells = [_deaths_cell(by_k[k], episodes) if k in by_k else "" for k in ks]
+        lines.append(f"| {path.stem.removeprefix('deaths_')} | {agent} | {episodes} | " + " | ".join(cells) + " |")
     return [*lines, ""]
 
 
-def _compact(rows: list[dict]) -> list[str]:
-    lines = ["| agent | k | episodes | goals / timeouts / deaths |", "| --- | --- | --- | --- |"]
-    for r in rows:
-        agent = f"{r['agent_speed'] * 2:g}× {r['technique']}" + (f" [{r['model']}]" if r.get("model") else "")
-        k = "–" if r["rollout_steps"] is None else r["rollout_steps"]
-        lines.append(f"| {agent} | {k} | {r['episodes']} | {r['G']} / {r['T']} / {r['D']} |")
+def _deaths_cell(summary: dict, episodes: int) -> str:
+    of = f" (of {summary['episodes']})" if summary["episodes"] != episodes else ""
+    return f"{summary['deaths']}{of}: " + "/".join(str(summary.get(c, 0)) for c in DEATH_CAUSES)
+
+
+def _weights(entry: dict, committed: dict, records: dict[str, str]) -> str:
+    """`committed` when a world model's weights are the evaluation's; else each other file: its training record
+    (found by SHA-256) or the name the manifest gives it, with the SHA-256's first 8 digits."""
+    names = entry.get("weights", [])
+    hashes = entry["weights_sha256"].split("+")
+    ours = committed.get("weights_sha256", "").split("+")
+    other = [(i, h) for i, h in enumerate(hashes) if i >= len(ours) or h != ours[i]]
+    if not other:
+        return "committed"
+    named = [records.get(h) or (f"`{names[i]}`" if i < len(names) else "unnamed") for i, h in other]
+    return ", ".join(f"{n} ({h[:8]})" for n, (_, h) in zip(named, other, strict=True))
+
+
+def _training_records(results: Path) -> dict[str, str]:
+    """The candidate priors' records beside the store (`datasets/training/*/provenance.json`) by weights SHA-256."""
+    out = {}
+    for path in sorted((results.parent / "training").glob("*/provenance.json")):
+        sha = json.loads(path.read_text()).get("sha256")
+        if sha:
+            out[sha] = f"record `{path.parent.name}`"
+    return out
+
+
+def _gtd(row: dict, full: int) -> str:
+    partial = f" (of {row['episodes']})" if row["episodes"] < full else ""
+    return f"{row['G']}/{row['T']}/{row['D']}{partial}"
+
+
+def _agents(run: Run, manifest: dict) -> dict[tuple, dict]:
+    """A run's aggregated rows by agent (technique, model, speed), then by k, in Table 1's order."""
+    agents: dict[tuple, dict] = {}
+    for row in aggregate(run.current(manifest)):
+        agents.setdefault((row["technique"], row.get("model"), row["agent_speed"]), {})[row["rollout_steps"]] = row
+    return agents
+
+
+def _run_lines(run: Run, reference: dict, records: dict[str, str], ks: list[int]) -> list[str]:
+    """A run's lines of the summary: one per agent, a G/T/D cell per k; the run's name and role, its caution and
+    weights only where they change. `reference`: the evaluation's manifest (what `committed` means)."""
+    manifest = run.manifest()
+    lines, last = [], None
+    for (technique, model, speed), by_k in _agents(run, manifest).items():
+        entry = manifest["world_models"].get(model, {}) if model else {}
+        caution = _caution(entry) if entry else "–"
+        if manifest["playouts"] != reference.get("playouts", manifest["playouts"]):
+            caution += f"; {manifest['playouts']} playouts"
+        committed = reference.get("world_models", {}).get(model, {})
+        setting = (caution, _weights(entry, committed, records) if entry else "–")
+        head = f"`{run.name}` | {manifest['role']}" if last is None else "″ |"
+        shown = " | ".join(setting) if setting != last else "″ | ″"
+        last = setting
+        agent = f"{speed * 2:g}× {technique}" + (f" [{model}]" if model else "")
+        cells = [_gtd(by_k[k], len(manifest["episode_seeds"])) if k in by_k else "" for k in ks]
+        lines.append(f"| {head} | {agent} | {shown} | " + " | ".join(cells) + " |")
     return lines
 
 
-def runs_section(results: Path, role: str) -> list[str]:
-    chosen = runs(results, role)
+def runs_section(results: Path) -> list[str]:
+    """Every validation, candidate and superseded run in one table."""
+    chosen = [run for role in ROLES if role != "evaluation" for run in runs(results, role)]
     if not chosen:
         return []
-    lines = [f"## {ROLE_TITLES[role]}", "",
-             "Commands in today's form (`--run NAME`; `MODEL_DIR` holds the run's weights as "
-             "`<model>/{vqvae,pixelcnn}.pt`); each manifest keeps the command line exactly as it was run.",
-             ""]  # fmt: skip
+    evaluation = Run(results, EVALUATION_RUN)
+    reference = evaluation.manifest() if evaluation.exists() else {}
+    ks = sorted({k for run in chosen for by_k in _agents(run, run.manifest()).values() for k in by_k if k is not None})
+    lines = ["## Validation, candidate and superseded runs", "",
+             "*Validation* runs play the validation episodes (seeds 2,000,000…), where settings were chosen; "
+             "*candidate* runs replay weights or settings not adopted on the evaluation episodes; *superseded* runs "
+             "hold the evaluation of weights or settings since replaced. Cells: goals / timeouts / deaths (`of N`: "
+             "fewer episodes than the run's); ″: as above; weights: `committed` (Table 1's) or those that differ "
+             "(SHA-256 prefix). A run's commands are in `datasets/results/runs/RUN/manifest.json`; a line plays "
+             "again with `python -m flows.evaluate --run RUN --techniques T --models M --agent-speeds S "
+             "--rollout-steps K`, the caution's options, `--model-dir DIR` for other weights and, on validation "
+             "episodes, `--first-seed 2000000 --log-dir datasets/validation_logs`.", "",
+             "| run | role | agent | caution | weights | " + " | ".join(f"k = {k}" for k in ks) + " |",
+             "|" + " --- |" * (5 + len(ks))]  # fmt: skip
+    records = _training_records(results)
     for run in chosen:
-        manifest = run.manifest()
-        models = manifest["world_models"]
-        lines += [f"### `{run.name}`", ""]
-        for model, entry in sorted(models.items()):
-            weights = ", ".join(f"`{w}`" for w in entry.get("weights", [])) or "unnamed weights"
-            short = " + ".join(f"{h[:12]}…" for h in entry["weights_sha256"].split("+"))
-            lines.append(f"- {model}: {weights} (SHA-256 `{short}`), caution: "
-                         f"{_caution(entry)}")  # fmt: skip
-        commands = [i.get("equivalent", i["command"]) for i in manifest["invocations"]]
-        lines += [f"- {manifest['playouts']} playouts; commands: " + "; ".join(f"`{c}`" for c in commands), ""]
-        lines += [*_compact(aggregate(run.current())), ""]
-    return lines
+        lines += _run_lines(run, reference, records, ks)
+    return [*lines, ""]
 
 
 def results_page(results: Path, docs: Path) -> str:
@@ -169,12 +218,10 @@ def results_page(results: Path, docs: Path) -> str:
              "decision's share of its lockstep batch's prediction, split by the grids each case asked for (docs/"
              "protocol.md §4), played by two single-thread workers on a 2-core CPU.", "",
              render_markdown(rows).rstrip("\n"), ""]  # fmt: skip
+    lines += runs_section(results)
     lines += prediction_section(results, docs)
     lines += figure1_section(results, docs)
     lines += deaths_section(results)
-    for role in ROLES:
-        if role in ROLE_TITLES:
-            lines += runs_section(results, role)
     return "\n".join(lines).rstrip("\n") + "\n"
 
 

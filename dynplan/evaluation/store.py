@@ -66,9 +66,10 @@ def case_key(row: Mapping) -> tuple:
     return tuple(row.get(k) for k in CASE_KEYS)
 
 
-def provenance_of(row: Mapping) -> dict:
-    """The provenance fields a row records (a caution setting that is off is absent)."""
-    return {k: row.get(k) for k in PROVENANCE_KEYS}
+def provenance_of(row: Mapping, keys: Iterable[str] = PROVENANCE_KEYS) -> dict:
+    """The provenance fields a row records (a caution setting that is off is absent): `keys`, by default those of
+    the caution the code knows; a run's manifest may name settings of a caution recorded with other code."""
+    return {k: row.get(k) for k in keys}
 
 
 def check_run_name(name: str) -> str:
@@ -197,7 +198,10 @@ class Run:
         seeds = set(manifest["episode_seeds"])
         out: dict[tuple, dict] = {}
         for row in self.rows():
-            if row.get("seed") in seeds and provenance_of(row) == expected_provenance(manifest, row):
+            if row.get("seed") not in seeds:
+                continue
+            expected = expected_provenance(manifest, row)
+            if provenance_of(row, expected) == expected:
                 out[case_key(row)] = row
         return list(out.values())
 

@@ -14,6 +14,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from dynplan.env.road import World
+from dynplan.models.registry import caution_for
+from dynplan.models.world_model import LearnedWorldModel, world_model_parts, world_model_paths
 from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
 
 
@@ -45,27 +47,22 @@ class Technique:
     search: bool = True
     samples: int = 0  # decoder samples merged (learned techniques)
     futures: int = 0  # code futures sampled from the prior and merged (learned techniques)
-    marginal: bool = False  # the futures merged through their mean obstacle probability, not their frames
 
 
 def learned_model(model: str, samples: int, seed: int, futures: int = 0, model_dir: str | os.PathLike | None = None,
-                  caution: Mapping[str, float] | None = None, device: str = "cpu",
-                  marginal: bool = False) -> ForwardModel:  # fmt: skip
+                  caution: Mapping[str, float] | None = None, device: str = "cpu") -> ForwardModel:  # fmt: skip
     """The learned forward model of configuration `model` (weights loaded once per content; see
     `world_model_paths`), with the configuration's own caution except where `caution` (field → value) overrides
-    it, generating batches on `device`; `marginal`: its futures merge through their mean obstacle probability."""
-    from dynplan.models.registry import caution_for
-    from dynplan.models.world_model import LearnedWorldModel, world_model_parts, world_model_paths
-
+    it, generating batches on `device`."""
     parts = world_model_parts(world_model_paths(model, None if model_dir is None else str(model_dir)), model)
-    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed,
-                             **caution_for(model, caution).model_dump(), device=device, marginal=marginal)  # fmt: skip
+    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed, caution=caution_for(model, caution),
+                             device=device)  # fmt: skip
 
 
-def _learned(samples: int, futures: int, marginal: bool) -> Callable[[AgentInputs], ForwardModel]:
+def _learned(samples: int, futures: int) -> Callable[[AgentInputs], ForwardModel]:
     def build(inputs: AgentInputs) -> ForwardModel:
         return learned_model(inputs.model, samples, inputs.seed, futures, inputs.model_dir, inputs.caution,
-                             inputs.device, marginal)  # fmt: skip
+                             inputs.device)  # fmt: skip
 
     return build
 
@@ -90,14 +87,12 @@ def technique(name: str) -> Technique:
         raise ValueError(f"unknown technique {name!r}; known: {sorted(TECHNIQUES)}") from None
 
 
-def learned_technique(name: str, samples: int = 0, futures: int = 0, description: str = "",
-                      marginal: bool = False) -> Technique:  # fmt: skip
+def learned_technique(name: str, samples: int = 0, futures: int = 0, description: str = "") -> Technique:
     """A technique that plans with a world model, merging `samples` decoder samples and `futures` code futures
-    with the greedy future (both 0: the greedy future's mid-point frames, the paper's Mid); `marginal`: the
-    futures through their mean obstacle probability at the configuration's occupancy threshold."""
-    description = description or f"learned model, {samples} samples, {futures} futures" + ", marginal" * marginal
-    return Technique(name, description, _learned(samples, futures, marginal), world_model=True, samples=samples,
-                     futures=futures, marginal=marginal)  # fmt: skip
+    with the greedy future (both 0: the greedy future's mid-point frames, the paper's Mid)."""
+    description = description or f"learned model, {samples} samples, {futures} futures"
+    return Technique(name, description, _learned(samples, futures), world_model=True, samples=samples,
+                     futures=futures)  # fmt: skip
 
 
 for _t in (
@@ -108,16 +103,5 @@ for _t in (
     Technique("zero", "an empty road, goal unknown (a lower bound)", lambda i: ZeroModel()),
     Technique("random", "uniformly random actions, no search", lambda i: None, search=False),
     learned_technique("futures5", 0, 5, "learned model: 5 code futures sampled from the prior (beyond the paper)"),
-    *(
-        learned_technique(
-            f"marginal{n}",
-            0,
-            n,
-            f"learned model: the pixels whose obstacle probability, averaged over {n} code "
-            "futures sampled from the prior, reaches the occupancy threshold (beyond the paper)",
-            True,
-        )
-        for n in (8, 16)
-    ),
 ):
     register_technique(_t)

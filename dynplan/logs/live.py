@@ -17,6 +17,7 @@ from foxglove_schemas_protobuf.PoseInFrame_pb2 import PoseInFrame
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from mcap_protobuf.schema import build_file_descriptor_set
 
+from dynplan.env.colors import draw_agent
 from dynplan.extras import require
 from dynplan.logs.format import (
     SEARCH_JSON_SCHEMA,
@@ -32,7 +33,6 @@ from dynplan.logs.format import (
     log_time,
 )
 from dynplan.logs.writer import annotations, image_message, imagined_strip, pose_message
-from dynplan.render import draw_agent
 
 #: The Foxglove app's default WebSocket port.
 DEFAULT_PORT = 8765

@@ -23,6 +23,7 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 
+from dynplan.env.colors import draw_agent
 from dynplan.env.road import World
 from dynplan.files import atomic_path
 from dynplan.logs.format import (
@@ -43,7 +44,6 @@ from dynplan.logs.format import (
     AgentTrack,
     log_time,
 )
-from dynplan.render import draw_agent
 
 #: Uncompressed bytes per MCAP chunk: about 50 frames, so a truncated log keeps most of its frames readable.
 CHUNK_BYTES = 128 * 1024

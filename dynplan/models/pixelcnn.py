@@ -4,9 +4,7 @@ A gated PixelCNN (van den Oord et al. 2016) over a code grid: a vertical stack t
 horizontal stack that sees the codes to the left in the current row, fed from the vertical one; the first
 layer is masked "A" (excludes the current position), the rest "B"; the horizontal stack is residual after the
 first layer. The four previous code grids are embedded, mixed by a small non-causal convolution stack into a
-spatial conditioning map, and added to the gates of every layer. Beyond the paper, `lane_kernel` adds a convolution
-along each code row of the conditioning (obstacles move along rows): a prior of a long context sees where fast
-obstacles were further along their lanes than the two 3 × 3 convolutions reach.
+spatial conditioning map, and added to the gates of every layer.
 
 Shapes: codes (B, h, w) int64 in [0, K); context (B, 4, h, w); logits (B, K, h, w).
 """
@@ -17,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from pydantic import Field, field_validator
+from pydantic import Field
 from torch import nn
 
 from dynplan.config import Config
@@ -43,21 +41,8 @@ class PixelCNNConfig(Config):
     codebook_init: bool = Field(
         False, description="start both code embeddings from the tokenizer's codebook (else random)"
     )
-    goal_weight: float = Field(
-        1.0, gt=0.0, le=1000.0, description="loss weight of the positions whose target code draws goal pixels"
-    )
-    lane_kernel: int = Field(
-        1, ge=1, le=31, description="odd width in codes of a row convolution added to the conditioning map; 1: none"
-    )
 
-    _neutral = {"learning_rate_halflife": None, "codebook_init": False, "goal_weight": 1.0, "lane_kernel": 1}
-
-    @field_validator("lane_kernel")
-    @classmethod
-    def _odd(cls, v: int) -> int:
-        if v % 2 != 1:
-            raise ValueError(f"lane_kernel must be odd (centred on its code), got {v}")
-        return v
+    _neutral = {"learning_rate_halflife": None, "codebook_init": False}
 
 
 PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
@@ -76,8 +61,6 @@ PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
         batch_size=64,
         learning_rate=1e-3,
     ),
-    # The reference's size: 15 layers of 256 channels, a 7 × 7 first kernel, then 3 × 3.
-    "reference": PixelCNNConfig(name="reference", codebook_size=512, channels=256, layers=15, condition_channels=256),
 }
 
 
@@ -137,11 +120,6 @@ class ConditionalPixelCNN(nn.Module):
             nn.ReLU(),
             nn.Conv2d(c.condition_channels, c.condition_channels, 3, padding=1),
         )
-        if c.lane_kernel > 1:  # starts at zero: a prior grown from one without it predicts as that one did
-            self.lane = nn.Conv2d(c.condition_channels, c.condition_channels, (1, c.lane_kernel),
-                                  padding=(0, c.lane_kernel // 2))  # fmt: skip
-            nn.init.zeros_(self.lane.weight)
-            nn.init.zeros_(self.lane.bias)
         self.layers = nn.ModuleList(
             GatedLayer(
                 "A" if i == 0 else "B",
@@ -169,39 +147,11 @@ class ConditionalPixelCNN(nn.Module):
             q, _ = torch.linalg.qr(torch.randn(max(D, width), min(D, width), generator=generator))
             table.weight.copy_(standard @ (q if width <= D else q.T))
 
-    @torch.no_grad()
-    def place_warm_start(self, name: str, source: torch.Tensor, into: torch.Tensor) -> bool:
-        """Start a prior of a longer context from a shorter one's weights (`flows.train --init-from`): the first
-        conditioning convolution keeps the source's weights on the channels of the most recent frames and zero on
-        the older ones, so the grown prior first predicts exactly as the source did; a wider lane convolution keeps
-        the source's taps centred. False for any other tensor."""
-        if name == "lane.weight" and source.shape[:3] == into.shape[:3] and source.shape[3] < into.shape[3]:
-            into.zero_()  # a wider lane convolution: the source's taps in the middle, zero on either side
-            offset = (into.shape[3] - source.shape[3]) // 2
-            into[..., offset : offset + source.shape[3]].copy_(source)
-            return True
-        if name != "conditioner.0.weight" or source.shape[0] != into.shape[0]:
-            return False
-        grown = into.shape[1] - source.shape[1]
-        if grown <= 0 or grown % self.config.embed_dim:
-            return False
-        into.zero_()
-        into[:, grown:].copy_(source)  # channels are frame-major, oldest frame first
-        return True
-
-    def starts_fresh(self, name: str) -> bool:
-        """Whether the parameter `name` keeps its own start when a warm start's source lacks it: the lane
-        convolution, which starts at zero, so the grown prior first predicts as its source."""
-        return name.startswith("lane.")
-
     def condition(self, context: torch.Tensor) -> torch.Tensor:
         """context (B, 4, h, w) codes → conditioning map (B, condition_channels, h, w)."""
         B, n, h, w = context.shape
         e = self.context_embed(context.long())  # (B, n, h, w, E)
-        mix, relu, out_conv = self.conditioner  # unpacked: a slice would build a Sequential per call
-        hidden = relu(mix(e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w)))
-        out = out_conv(hidden)
-        return out + self.lane(hidden) if self.config.lane_kernel > 1 else out
+        return self.conditioner(e.permute(0, 1, 4, 2, 3).reshape(B, n * self.config.embed_dim, h, w))
 
     def layer_conditions(self, condition: torch.Tensor) -> torch.Tensor:
         """Every layer's conditioning of its vertical and horizontal gates from the conditioning map (B, c, h, w), as
@@ -236,17 +186,11 @@ class ConditionalPixelCNN(nn.Module):
         out = self.head[-1]
         return F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)
 
-    def forward(self, context: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> PriorOutput:
-        """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w);
-        `weight` (B, h, w): each position's share of the loss (its weighted mean), else all alike."""
+    def forward(self, context: torch.Tensor, target: torch.Tensor) -> PriorOutput:
+        """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w)."""
         target = target.long()
         logits = self.teacher_forced_logits(context, target)  # (B, h, w, K)
-        if weight is None:
-            loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
-        else:
-            nll = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1), reduction="none")
-            weight = weight.reshape(-1).to(nll.dtype)
-            loss = (nll * weight).sum() / weight.sum()
+        loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
         accuracy = (logits.argmax(-1) == target).float().mean()
         return PriorOutput(logits.permute(0, 3, 1, 2), loss, accuracy)
 

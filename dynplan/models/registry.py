@@ -36,8 +36,7 @@ class WorldModelSpec:
         if self.prior.codebook_size != self.tokenizer.codebook_size:
             raise ValueError(f"world model {self.name!r}: the prior's codebook_size {self.prior.codebook_size} is not "
                              f"the tokenizer's {self.tokenizer.codebook_size}")  # fmt: skip
-        if self.caution.occupancy and not self.tokenizer.local:
-            raise ValueError(f"world model {self.name!r}: occupancy needs patch-local codes (tokenizer local=True)")
+        self.caution.check_fits(self.tokenizer.local, self.name)
         unknown = (set(self.budgets) | set(self.weights)) - set(STAGES)
         if unknown:
             raise ValueError(f"world model {self.name!r}: unknown stages {sorted(unknown)}; stages are {STAGES}")

@@ -57,7 +57,7 @@ def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int,
                  technique: str = "mid") -> dict[str, str]:  # fmt: skip
     """Prediction error against horizon (every configuration), a Figure-1 image and a replay GIF (the first),
     into `out`; skipped when `out/figures.json` says they were drawn from the same checkpoints."""
-    from dynplan.analysis.prediction import errors_by_horizon, figure1, plot_errors
+    from dynplan.evaluation.prediction import errors_by_horizon, figure1, plot_errors
     from dynplan.evaluation.replay import replay
     from dynplan.models.world_model import load_world_model
 
@@ -70,19 +70,17 @@ def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int,
     if drawn and all((out / n).exists() for n in names.values()):
         return names
     chosen = find_technique(technique)
-    samples, futures, marginal = chosen.samples, chosen.futures, chosen.marginal
+    samples, futures = chosen.samples, chosen.futures
     curves = {}
     for model, folder in models.items():
         curves[f"{model}, {technique}"] = errors_by_horizon(
-            load_world_model(folder, model=model, samples=samples, futures=futures, marginal=marginal), episodes
+            load_world_model(folder, model=model, samples=samples, futures=futures), episodes
         )
     with atomic_path(out / names["errors"], keep_suffix=True) as tmp:
         plot_errors(curves, tmp)
     first, folder = next(iter(models.items()))
     with atomic_path(out / names["figure1"], keep_suffix=True) as tmp:
-        figure1(
-            load_world_model(folder, model=first, samples=samples, futures=futures, marginal=marginal), tmp, seed=seed
-        )
+        figure1(load_world_model(folder, model=first, samples=samples, futures=futures), tmp, seed=seed)
     log = log_path(eval_logs, seed)
     replay(
         log,

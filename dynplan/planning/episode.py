@@ -58,26 +58,19 @@ BatchDecisionHook = Callable[[int, int, np.ndarray, Prediction | None, Decision]
 
 def _predict(models: Sequence[ForwardModel], observed: Sequence[np.ndarray],
              ks: Sequence[int]) -> tuple[list[Prediction], list[float]]:  # fmt: skip
-    """Each model's prediction of its own episode, and the ms each took. Models that predict in batches (a
-    `batch_key` and a static `predict_batch`, e.g. the learned world model) are asked once per group of equal keys,
-    and a group's time is shared in proportion to what each asked for (`cost(k)`, else k)."""
+    """Each model's prediction of its own episode, and the ms each took: one `predict_batch` per group of models of
+    one type and `batch_key`, whose time is shared in proportion to what each asked for (`cost`)."""
     out: list[Prediction | None] = [None] * len(models)
     ms = [0.0] * len(models)
-    groups: dict[object, list[int]] = {}
+    groups: dict[tuple[type, object], list[int]] = {}
     for i, model in enumerate(models):
-        key = getattr(model, "batch_key", None)
-        if key is None:
-            start = time.perf_counter()
-            out[i] = model.predict(observed[i], ks[i])
-            ms[i] = (time.perf_counter() - start) * 1e3
-        else:
-            groups.setdefault((type(model), key), []).append(i)
+        groups.setdefault((type(model), model.batch_key), []).append(i)
     for (kind, _), members in groups.items():
         start = time.perf_counter()
         predictions = kind.predict_batch([models[i] for i in members], [observed[i] for i in members],
                                          [ks[i] for i in members])  # fmt: skip
         spent = (time.perf_counter() - start) * 1e3
-        costs = [getattr(models[i], "cost", lambda k: k)(ks[i]) for i in members]
+        costs = [models[i].cost(ks[i]) for i in members]
         for i, prediction, cost in zip(members, predictions, costs, strict=True):
             out[i], ms[i] = prediction, spent * cost / sum(costs)
     return out, ms  # type: ignore[return-value]
@@ -103,6 +96,10 @@ def run_episodes(
     n = len(worlds)
     if not n == len(planners) == len(models):
         raise ValueError(f"run_episodes: {n} worlds, {len(planners)} planners, {len(models)} models")
+    wrong = [type(m).__name__ for m in models if m is not None and not isinstance(m, ForwardModel)]
+    if wrong:
+        raise TypeError(f"run_episodes: {wrong[0]} is not a ForwardModel (name, predict, predict_batch, batch_key, "
+                        "cost): subclass dynplan.planning.forward.ForwardModel")  # fmt: skip
     speeds = [agent_speed] * n if np.isscalar(agent_speed) else list(agent_speed)
     horizons_of = [rollout_steps] * n if np.isscalar(rollout_steps) else list(rollout_steps)
     if not len(speeds) == len(horizons_of) == n:

@@ -1,18 +1,22 @@
-"""The forward-model seam: what the planner asks of a world model.
+"""The forward-model seam: what the planner asks of a world model, declared as one batched call.
 
 Given the frames observed so far (frames 0 … t), a forward model predicts the next k frames t+1 … t+k. The
-world does not depend on the agent, so one prediction serves every rollout of a decision. Implementations:
-`OracleModel` (the true future of a recorded world — the upper bound), `ZeroModel` (empty road, goal unknown —
-a sanity floor); the learned VQ-VAE + PixelCNN model plugs in behind the same `predict`. A model that can predict
-for many episodes at once also has a hashable `batch_key` (models with equal keys batch together), a static
-`predict_batch(models, observed, ks)`, which `run_episodes` calls once per step for each group, and `cost(k)`, the
-relative work of a k-frame prediction, by which the group's time is shared.
+world does not depend on the agent, so one prediction serves every rollout of a decision. `run_episodes` plays
+many episodes in lockstep and, at each step, groups the live episodes' models by `(type(model), model.batch_key)`
+and asks each group once: `predict_batch(models, observed, ks)`. `predict(observed, k)` is its batch of one.
+`cost(k)` is the relative work of a k-frame prediction, by which a group's time is shared between its episodes.
+
+Implementations: `OracleModel` (the true future of a recorded world — the upper bound), `ZeroModel` (empty road,
+goal unknown — a floor) and the learned VQ-VAE + PixelCNN model (`dynplan.models.world_model`). A new model
+subclasses `ForwardModel` and writes `predict`; it batches with others only if it overrides `batch_key` and
+`predict_batch` (the defaults predict one model at a time).
 """
 
 from __future__ import annotations
 
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -36,14 +40,35 @@ class Prediction:
         return cls(frames, goal_centres(frames))
 
 
+@runtime_checkable
 class ForwardModel(Protocol):
-    """Predicts the future of the world from what has been observed."""
+    """Predicts the future of the world from what has been observed, for one episode or many at once.
+
+    Shapes: observed (t+1, H, W) uint8 frames 0 … t of one episode; a prediction holds (k, H, W) frames.
+    """
 
     name: str
 
     def predict(self, observed: np.ndarray, k: int) -> Prediction:
         """`observed`: (t+1, H, W) uint8 frames 0 … t; returns the prediction of frames t+1 … t+k."""
         ...
+
+    @property
+    def batch_key(self) -> Hashable:
+        """Models of one type with equal keys predict together in one `predict_batch` call (e.g. the same
+        weights on the same device); by default each model is a group of its own."""
+        return id(self)
+
+    def cost(self, k: int) -> float:
+        """The relative work of a k-frame prediction: how a group's time is shared between its episodes."""
+        return float(k)
+
+    @classmethod
+    def predict_batch(cls, models: Sequence[ForwardModel], observed: Sequence[np.ndarray],
+                      ks: Sequence[int]) -> list[Prediction]:  # fmt: skip
+        """Each model's prediction of its own episode: `observed[e]` (t_e+1, H, W) uint8, `ks[e]` frames ahead.
+        `models` share one `batch_key` and this type. By default one `predict` after another."""
+        return [model.predict(o, k) for model, o, k in zip(models, observed, ks, strict=True)]
 
 
 def goal_centres(frames: np.ndarray) -> np.ndarray:
@@ -59,7 +84,7 @@ def goal_centres(frames: np.ndarray) -> np.ndarray:
     return centre
 
 
-class OracleModel:
+class OracleModel(ForwardModel):
     """The true future: frames t+1 … t+k of the recorded world (fewer near the episode's end)."""
 
     name = "oracle"
@@ -72,7 +97,7 @@ class OracleModel:
         return Prediction.from_frames(self.frames[t + 1 : t + 1 + k])
 
 
-class ZeroModel:
+class ZeroModel(ForwardModel):
     """Predicts an empty road and no goal: the planner sees neither obstacles nor where to go."""
 
     name = "zero"

@@ -46,12 +46,6 @@ class MCTSConfig(Config):
     c_puct: float = Field(1.4, gt=0.0, le=100.0, description="exploration constant c")
     temperature: float = Field(0.01, gt=0.0, le=100.0, description="temperature on visit counts")
     prior_weights: tuple[float, ...] = Field(PAPER_PRIOR, description="8 weights by heading rank")
-    reuse_subtree: bool = Field(True, description="keep the chosen child's subtree as the next root")
-    avoid_foreseen_deaths: bool = Field(
-        False,
-        description="beyond the paper: never take a step the newest prediction shows as a death while another "
-        "exists (a reused subtree's visits were counted against an older prediction)",
-    )
 
     @field_validator("prior_weights")
     @classmethod
@@ -244,7 +238,7 @@ class Tree:
 
 class MCTSPlanner:
     """PUCT MCTS agent. Call `act` once per decision with the agent's position, the frame index and the forward
-    model's prediction; with `reuse_subtree` the chosen child's statistics carry over to the next call."""
+    model's prediction; the chosen child's subtree, with its statistics, is the next call's root."""
 
     def __init__(self, config: MCTSConfig | None = None, agent_speed: float = 1.0, max_steps: int = 203,
                  seed: int = 0):  # fmt: skip
@@ -266,8 +260,7 @@ class MCTSPlanner:
     def _root(self, position: np.ndarray) -> None:
         """Make the root: the previous decision's chosen child with its subtree, or a fresh node."""
         old, new = self.tree, self.spare
-        reuse = self.config.reuse_subtree and self._next_root is not None
-        if reuse and np.allclose(old.position[self._next_root], position):
+        if self._next_root is not None and np.allclose(old.position[self._next_root], position):
             new.clear()
             new.size = _copy_subtree(*old.arrays(), self._next_root, *new.arrays())
             self.tree, self.spare = new, old
@@ -294,20 +287,9 @@ class MCTSPlanner:
         visits = tree.visits[children].astype(np.float64)
         q = np.where(visits > 0, tree.value[children] / np.maximum(visits, 1), 0.0)
         action = self._choose(visits)
-        if cfg.avoid_foreseen_deaths:
-            action = self._avoid_foreseen_death(action, children, frames, visits)
         self._next_root = int(children[action])
         return Decision(action, visits.astype(np.int64), q, tree.prior[children].copy(),
                         (time.perf_counter() - start) * 1e3)  # fmt: skip
-
-    def _avoid_foreseen_death(self, action: int, children: np.ndarray, frames: np.ndarray, visits: np.ndarray) -> int:
-        """`action`, unless the newest prediction shows its step as a death and another step is not: then the
-        most visited of those (ties to the higher prior)."""
-        tree = self.tree
-        dead = np.array([_judge(frames, 0, tree.position[c, 0], tree.position[c, 1]) == DEATH for c in children])
-        if not dead[action] or dead.all():
-            return action
-        return int(np.argmax(np.where(dead, -np.inf, visits + 1e-6 * tree.prior[children])))
 
     def _choose(self, visits: np.ndarray) -> int:
         """Sample from visits^(1/temperature), computed in log space (temperature 0.01: the most visited)."""

@@ -199,27 +199,20 @@ def _cpu(state):
 def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:
     """Start `model` from the weights of the checkpoint at `path`. Tensors of the same shape are copied; a tensor
     grown along one dimension (a larger codebook) gets the old entries first and keeps its fresh ones after
-    them (unused codes, which dead-code restarts then place); a model may place a tensor it grows by its own rule
-    (`place_warm_start`: the prior's longer context), and keep its own start for a part the source lacks
-    (`starts_fresh`: the prior's lane convolution). Anything else is a CheckpointError."""
+    them (unused codes). Anything else is a CheckpointError."""
     source = checkpoint.load(path, kind)["model"]
     target = model.state_dict()
     if "code_sharpness" in target and "code_sharpness" not in source:  # from an uncalibrated decoder: scale 1
         source = {**source, "code_sharpness": torch.ones_like(target["code_sharpness"])}
     source = {k: v for k, v in source.items() if k != "code_sharpness" or k in target}
-    fresh = getattr(model, "starts_fresh", lambda name: False)  # a part the model adds at its own start
-    expected = {name for name in target if name in source or not fresh(name)}
-    if set(source) != expected:
-        differing = ", ".join(sorted(set(source) ^ expected)[:4])
+    if set(source) != set(target):
+        differing = ", ".join(sorted(set(source) ^ set(target))[:4])
         raise checkpoint.CheckpointError(
             f"{path}: cannot start this run from it: the architecture differs (parameters {differing} …)"
         )
     with torch.no_grad():
-        place = getattr(model, "place_warm_start", None)  # a model's own rule for a tensor it grows
         for name, value in source.items():
             into = target[name]
-            if place is not None and place(name, value, into):
-                continue
             grown = (
                 [d for d in range(into.dim()) if into.shape[d] != value.shape[d]] if into.dim() == value.dim() else None
             )

@@ -19,12 +19,10 @@ import zarr
 
 from dynplan.data.datasets import WindowDataset
 from dynplan.data.history import context_indices, first_target
-from dynplan.env.config import GOAL_VALUE
 from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
-from dynplan.models.vqvae import VQVAE
 from dynplan.render import comparison_columns
 from dynplan.training import loop
 from dynplan.training.loop import TrainBudget
@@ -54,9 +52,6 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         raise ValueError(f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
                          f"for codebook_size={config.codebook_size}")  # fmt: skip
     device = budget.torch_device
-    position_weight = None  # the training loss's weight by target code; the validation loss stays unweighted
-    if config.goal_weight != 1.0:
-        position_weight = 1.0 + (config.goal_weight - 1.0) * goal_codes(tokenizer).float().to(device)
     model = ConditionalPixelCNN(config)
     if config.codebook_init:  # a warm start (`init_from`), loaded later, replaces this
         model.embed_codebook(tokenizer.quantizer.embed[0], torch.Generator().manual_seed(budget.seed))
@@ -79,8 +74,7 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         if config.learning_rate_halflife:
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(config, _steps_taken(optimiser))
-        weight = None if position_weight is None else position_weight[window[:, -1]]
-        out = model(window[:, :-1], window[:, -1], weight)
+        out = model(window[:, :-1], window[:, -1])
         optimiser.zero_grad(set_to_none=True)
         out.loss.backward()
         optimiser.step()
@@ -115,16 +109,6 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
                        images=images, unit="windows")  # fmt: skip
     return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
-
-
-@torch.inference_mode()
-def goal_codes(tokenizer: VQVAE) -> torch.Tensor:
-    """(K,) bool: the codes whose decoded patch draws a goal pixel (patch-local codes: each decodes alone)."""
-    if not tokenizer.config.local or tokenizer.config.n_codebooks != 1:
-        raise ValueError("goal_weight needs a patch-local tokenizer of one codebook (VQVAEConfig(local=True, "
-                         "n_codebooks=1)): a code of any other has no patch of its own")  # fmt: skip
-    patches = tokenizer.decode(torch.arange(tokenizer.config.codebook_size).reshape(-1, 1, 1))
-    return (patches == GOAL_VALUE).flatten(1).any(1)
 
 
 def learning_rate(config: PixelCNNConfig, steps: int) -> float:

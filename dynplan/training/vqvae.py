@@ -86,7 +86,8 @@ def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from dynplan.render import colorize, error_image
+    from dynplan.env.colors import colorize
+    from dynplan.render import error_image
 
     picks, decoded = _reconstructed(model, frames, n)
     fig, axes = plt.subplots(3, n, figsize=(2 * n, 6.4))
