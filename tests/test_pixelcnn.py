@@ -108,7 +108,7 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     store = tmp_path / "frames.zarr"
     build_frame_store_from_logs(store, list_logs(recorded_logs))
     tokenizer = VQVAEConfig(name="tiny", channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16,
-                            likelihood="categorical", ema=True, restart_dead=True, batch_size=8)  # fmt: skip
+                            likelihood="categorical", local=True, codebook_fit="contents", batch_size=8)  # fmt: skip
     vq = train_vqvae(store, tmp_path / "vq", tokenizer, TrainBudget(epochs=2, steps_per_epoch=20, val_frames=50,
                                                                     threads=1))  # fmt: skip
     build_codes(store, vq, "tiny")

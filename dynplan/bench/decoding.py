@@ -30,7 +30,7 @@ FRAMES = 640
 
 def _plain_decode(tokenizer, codes: torch.Tensor) -> torch.Tensor:
     """Mid-point frames from one pass of the decoder over every frame, the mid-point as tensor operations."""
-    params = tokenizer.decoder(tokenizer.quantizer.lookup(codes.unsqueeze(-1)))
+    params = tokenizer.decoder(tokenizer.quantizer.lookup(codes))
     if tokenizer.config.calibrate_decoder:
         return tokenizer.pixel.mid(params)  # a categorical mid-point: an argmax either way
     return tokenizer.pixel.mid_tensor(params)

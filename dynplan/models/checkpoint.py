@@ -66,12 +66,15 @@ def digest(*parts: Any) -> str:
 
 def load_vqvae_checkpoint(path: str | os.PathLike, config=None):
     """A VQ-VAE from a checkpoint (final or latest), in eval mode; with `config`, it must be the one trained."""
-    from dynplan.models.vqvae import VQVAE, VQVAEConfig
+    from dynplan.models.vqvae import VQVAE
 
     state = load(path, VQVAE_KIND, None if config is None else config.model_dump())
-    model = VQVAE(VQVAEConfig(**state["config"]))
-    model.load_state_dict(state["model"])
-    return model.eval()
+    try:
+        return VQVAE.from_checkpoint(state["config"], state["model"]).eval()
+    except RuntimeError as error:  # weights of another architecture: name the file and the first mismatch
+        raise CheckpointError(
+            f"{path}: its weights do not fit the tokenizer its config describes: {str(error).splitlines()[-1].strip()}"
+        ) from None
 
 
 def load_pixelcnn_checkpoint(path: str | os.PathLike, config=None):

@@ -1,7 +1,7 @@
 """The VQ-VAE tokenizer (docs/protocol.md §2, stage 1): a 48 × 48 frame ↔ an h × w grid of discrete codes.
 
 Encoder: 4 × 4 convolutions (stride 2 halves the grid, stride 1 keeps it), optional residual blocks, a 1 × 1
-projection to n_codebooks × latent_dim channels; vector quantization; a mirrored decoder of transposed
+projection to latent_dim channels; vector quantization with one codebook; a mirrored decoder of transposed
 convolutions ending in a pixel likelihood (`likelihood.py`). The paper's configuration is `PRESETS["paper"]`:
 channels 42, 32, 16, 16, strides 2, 2, 2, 1 (6 × 6 codes), K = 512, DMoL with 10 components, codebook loss.
 """
@@ -19,7 +19,7 @@ from torch import nn
 
 from dynplan.config import Config
 from dynplan.data.patches import tiles
-from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.env.config import GOAL_VALUE
 from dynplan.models.likelihood import Categorical, DMoL, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
 
@@ -42,13 +42,9 @@ class VQVAEConfig(Config):
     residual_blocks: int = Field(0, ge=0, le=16, description="residual blocks at the code resolution")
     latent_dim: int = Field(16, ge=1, le=1024, description="channels per code")
     codebook_size: int = Field(512, ge=2, le=65536, description="K, entries per codebook")
-    n_codebooks: int = Field(1, ge=1, le=16, description="codes per grid position")
     likelihood: Literal["dmol", "categorical"] = Field("dmol", description="decoder pixel likelihood")
     n_mixtures: int = Field(10, ge=1, le=64, description="DMoL components")
-    ema: bool = Field(False, description="EMA codebook updates instead of the codebook loss")
-    restart_dead: bool = Field(False, description="move unused codes onto encoder outputs (EMA only)")
     commitment: float = Field(0.25, ge=0.0, le=10.0, description="commitment loss weight β")
-    obstacle_weight: float = Field(1.0, gt=0.0, le=100.0, description="loss weight of non-free pixels")
     goal_weight: float = Field(1.0, gt=0.0, le=1000.0, description="loss weight of goal pixels")
     learning_rate: float = Field(1e-3, gt=0.0, le=1.0, description="Adam learning rate")
     batch_size: int = Field(32, ge=1, le=4096, description="frames per batch")
@@ -56,12 +52,6 @@ class VQVAEConfig(Config):
         False,
         description="patch-local codes: kernels equal to strides and 1 × 1 residual blocks, so each code "
         "depends only on its own patch and decodes to that patch alone",
-    )
-    restart_onto: Literal["random", "worst"] = Field(
-        "random", description="where dead codes restart: random encoder outputs, or ones drawn by quantisation error"
-    )
-    ema_decay: float = Field(
-        0.99, gt=0.0, lt=1.0, description="EMA decay of the codebook; an unused code dies after ~4.6/(1−decay) batches"
     )
     codebook_fit: Literal["learned", "contents"] = Field(
         "learned",
@@ -77,8 +67,7 @@ class VQVAEConfig(Config):
         "that decoder samples are as certain as the data make them (mid-point frames are unchanged)",
     )
 
-    _neutral = {"goal_weight": 1.0, "local": False, "restart_onto": "random", "ema_decay": 0.99,
-                "codebook_fit": "learned", "calibrate_decoder": False}  # fmt: skip
+    _neutral = {"goal_weight": 1.0, "local": False, "codebook_fit": "learned", "calibrate_decoder": False}
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -89,10 +78,8 @@ class VQVAEConfig(Config):
         scale = 2 ** sum(s == 2 for s in self.strides)
         if self.height % scale or self.width % scale:
             raise ValueError(f"frame {self.height}×{self.width} is not divisible by the encoder's stride {scale}")
-        if self.restart_dead and not self.ema:
-            raise ValueError("restart_dead needs ema=True")
-        if self.codebook_fit == "contents" and not (self.local and self.n_codebooks == 1):
-            raise ValueError("codebook_fit='contents' needs local=True and n_codebooks=1")
+        if self.codebook_fit == "contents" and not self.local:
+            raise ValueError("codebook_fit='contents' needs local=True")
         if self.calibrate_decoder and (self.codebook_fit != "contents" or self.likelihood != "categorical"):
             raise ValueError("calibrate_decoder needs codebook_fit='contents' and likelihood='categorical'")
         return self
@@ -111,8 +98,8 @@ PRESETS: dict[str, VQVAEConfig] = {
     # over the world's 7 values. The codebook is content-fitted: encoder and decoder are trained as an autoencoder
     # of the distinct patch contents and each of the 4096 most frequent (99.98 % of patches) gets a code of its own;
     # each code's decoder temperature is then calibrated to how often the patches occur. Goal pixels weigh 10× in
-    # the loss; the EMA fields are unused by the content fit but part of the committed run's config (and key).
-    # The committed weights are run `vqvae-default-1de9881c4f7e` (docs/design.md, tokenizer).
+    # the loss. The committed weights are run `vqvae-default-1de9881c4f7e` (docs/design.md, tokenizer), whose
+    # recorded config also names the training-only settings of the code that trained it (`VQVAE.from_checkpoint`).
     "default": VQVAEConfig(
         name="default",
         channels=(32, 64),
@@ -121,8 +108,6 @@ PRESETS: dict[str, VQVAEConfig] = {
         latent_dim=32,
         codebook_size=4096,
         likelihood="categorical",
-        ema=True,
-        restart_dead=True,
         goal_weight=10.0,
         learning_rate=1e-3,
         batch_size=1024,
@@ -162,7 +147,7 @@ class Residual(nn.Module):
 
 @dataclass
 class VQVAEOutput:
-    """params: decoder output (B, C, H, W); codes (B, h, w, n); losses by name; perplexity; code use (n, K)."""
+    """params: decoder output (B, C, H, W); codes (B, h, w); losses by name; perplexity; code use (K,)."""
 
     params: torch.Tensor
     codes: torch.Tensor
@@ -176,7 +161,7 @@ class VQVAE(nn.Module):
         super().__init__()
         self.config = config
         c = config
-        latent = c.latent_dim * c.n_codebooks
+        latent = c.latent_dim
         widths = (1, *c.channels)
         layers: list[nn.Module] = []
         for i, stride in enumerate(c.strides):
@@ -190,9 +175,7 @@ class VQVAE(nn.Module):
         if latent != widths[-1] or c.residual_blocks:
             layers.append(nn.Conv2d(widths[-1], latent, 1))
         self.encoder = nn.Sequential(*layers)
-        self.quantizer = VectorQuantizer(c.codebook_size, c.latent_dim, c.n_codebooks, c.commitment, c.ema,
-                                         decay=c.ema_decay, restart_dead=c.restart_dead,
-                                         restart_onto=c.restart_onto)  # fmt: skip
+        self.quantizer = VectorQuantizer(c.codebook_size, c.latent_dim, c.commitment)
         self.pixel = DMoL(c.n_mixtures) if c.likelihood == "dmol" else Categorical()
         layers = []
         if latent != widths[-1] or c.residual_blocks:
@@ -206,6 +189,22 @@ class VQVAE(nn.Module):
         if c.calibrate_decoder:  # per-code logit scale (inverse temperature), set by `calibrate`
             self.register_buffer("code_sharpness", torch.ones(c.codebook_size))
 
+    @classmethod
+    def from_checkpoint(cls, config: dict, weights: dict[str, torch.Tensor]) -> VQVAE:
+        """The tokenizer a checkpoint holds: its recorded `config` and `weights`. A checkpoint records the whole
+        config of the code that trained it; settings this code does not have (training-only ones, which do not
+        change what the trained model computes: docs/experiments.md, tokenizers) are left out, as is the codebook's
+        running statistics, and the weights must fit the architecture the rest builds (a RuntimeError naming the
+        tensors otherwise). A codebook recorded with a leading axis of one is that codebook."""
+        model = cls(VQVAEConfig(**{k: v for k, v in config.items() if k in VQVAEConfig.model_fields}))
+        own = model.state_dict()
+        weights = {k: v for k, v in weights.items() if k in own or not k.startswith("quantizer.")}
+        embed = weights.get("quantizer.embed")
+        if embed is not None and embed.dim() == 3 and embed.shape[0] == 1:
+            weights["quantizer.embed"] = embed[0]
+        model.load_state_dict(weights)
+        return model
+
     def forward(self, frames: torch.Tensor) -> VQVAEOutput:
         """uint8 frames (B, H, W) → reconstruction parameters, codes and the training losses."""
         z = self.encoder(to_unit(frames).unsqueeze(1))
@@ -215,12 +214,10 @@ class VQVAE(nn.Module):
         return VQVAEOutput(params, q.codes, losses, q.perplexity, q.counts)
 
     def reconstruction_loss(self, params: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
-        """Mean per-pixel negative log-likelihood of uint8 `frames`, obstacle and goal pixels weighted."""
+        """Mean per-pixel negative log-likelihood of uint8 `frames`, goal pixels weighted by `goal_weight`."""
         nll = self.pixel.nll(params, frames)
-        c = self.config
-        if c.obstacle_weight != 1.0 or c.goal_weight != 1.0:
-            weight = torch.where(frames != FREE, c.obstacle_weight, 1.0)  # goal pixels too (not FREE)
-            nll = nll * weight * torch.where(frames == GOAL_VALUE, c.goal_weight, 1.0)
+        if self.config.goal_weight != 1.0:
+            nll = nll * torch.where(frames == GOAL_VALUE, self.config.goal_weight, 1.0)
         return nll.mean()
 
     @property
@@ -240,16 +237,12 @@ class VQVAE(nn.Module):
         q = self.quantizer
         if contents.shape[0] != q.K:
             raise ValueError(f"need {q.K} contents for the codebook, got {contents.shape[0]}")
-        z = self.encoder(to_unit(contents).unsqueeze(1)).flatten(1)
-        q.embed[0].copy_(z)
-        if q.ema:  # consistent EMA state: each code its own cluster of one
-            q.embed_sum[0].copy_(z)
-            q.cluster_size[0].fill_(1.0)
+        q.embed.copy_(self.encoder(to_unit(contents).unsqueeze(1)).flatten(1))
 
     @torch.inference_mode()
     def encode(self, frames: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-        """uint8 frames (N, H, W), or one frame (H, W) → integer codes (N, h, w), or (h, w) (with several
-        codebooks, (…, n)). Returns the kind it is given: numpy in, numpy (int64) out; a tensor in, a tensor out."""
+        """uint8 frames (N, H, W), or one frame (H, W) → integer codes (N, h, w), or (h, w). Returns the kind it
+        is given: numpy in, numpy (int64) out; a tensor in, a tensor out."""
         frames, numpy_in, single = _array_in(frames, "frames", "encode", "uint8 frames (N, H, W) or one (H, W)",
                                              (2, 3), integer=False)  # fmt: skip
         codes = self._encode(frames)
@@ -257,10 +250,8 @@ class VQVAE(nn.Module):
 
     def _encode(self, frames: torch.Tensor) -> torch.Tensor:
         if self.config.local:
-            codes = self._encode_distinct_patches(frames)
-        else:
-            codes = self.quantizer.nearest(self.encoder(to_unit(frames).unsqueeze(1)))
-        return codes.squeeze(-1) if self.config.n_codebooks == 1 else codes
+            return self._encode_distinct_patches(frames)
+        return self.quantizer.nearest(self.encoder(to_unit(frames).unsqueeze(1)))
 
     def _encode_distinct_patches(self, frames: torch.Tensor) -> torch.Tensor:
         """A patch-local code is a function of its patch alone: encode each distinct patch once (most of this
@@ -270,18 +261,16 @@ class VQVAE(nn.Module):
         flat = tiles(frames.cpu().numpy(), (ph, pw))
         keys, inverse = np.unique(flat.view(f"V{ph * pw}").ravel(), return_inverse=True)
         contents = torch.from_numpy(keys.view(np.uint8).reshape(-1, ph, pw)).to(frames.device)
-        codes = self.quantizer.nearest(self.encoder(to_unit(contents).unsqueeze(1)))  # (U, 1, 1, n)
+        codes = self.quantizer.nearest(self.encoder(to_unit(contents).unsqueeze(1)))  # (U, 1, 1)
         index = torch.from_numpy(inverse.reshape(-1)).to(frames.device)
-        return codes.reshape(len(keys), -1)[index].reshape(len(frames), h, w, -1)
+        return codes.reshape(len(keys))[index].reshape(len(frames), h, w)
 
     @torch.inference_mode()
     def decode_params(self, codes: torch.Tensor, channels: int | None = None) -> torch.Tensor:
-        """Integer codes (N, h, w[, n]) → the decoder's likelihood parameters (N, C, H, W), in blocks of `DECODE_ROWS`
+        """Integer codes (N, h, w) → the decoder's likelihood parameters (N, C, H, W), in blocks of `DECODE_ROWS`
         frames (a frame's output does not depend on the others in its block). `channels`: only the first `channels`
         of C where that is cheaper (a last transposed convolution computes only those output channels, the same
         numbers; what a DMoL mid-point needs)."""
-        if codes.dim() == 3:
-            codes = codes.unsqueeze(-1)
         if len(codes) > DECODE_ROWS:
             return torch.cat([self.decode_params(codes[s : s + DECODE_ROWS], channels)
                               for s in range(0, len(codes), DECODE_ROWS)])  # fmt: skip
@@ -295,7 +284,7 @@ class VQVAE(nn.Module):
         params = self.decoder(latent)
         if self.config.calibrate_decoder:
             ph, pw = self.patch
-            scale = self.code_sharpness[codes[..., 0].long()].repeat_interleave(ph, 1).repeat_interleave(pw, 2)
+            scale = self.code_sharpness[codes.long()].repeat_interleave(ph, 1).repeat_interleave(pw, 2)
             params = params * scale[:, None]
         return params
 
@@ -306,7 +295,7 @@ class VQVAE(nn.Module):
         maximises the likelihood of the distinct patch `contents` (U, ph, pw), weighted by their `counts`, that
         encode to it; codes no content encodes to keep scale 1. Returns the scales (K,)."""
         codes = self.quantizer.nearest(self.encoder(to_unit(contents).unsqueeze(1))).reshape(-1)
-        logits = self.decoder(self.quantizer.lookup(codes[:, None, None, None]))  # (U, values, ph, pw)
+        logits = self.decoder(self.quantizer.lookup(codes[:, None, None]))  # (U, values, ph, pw)
         target = value_index(contents)
         nll = torch.stack([F.cross_entropy(logits * s, target, reduction="none").sum((1, 2)) for s in scales], 1)
         per_code = torch.zeros(self.config.codebook_size, len(scales), dtype=torch.float64, device=nll.device)
@@ -319,12 +308,10 @@ class VQVAE(nn.Module):
 
     @torch.inference_mode()
     def decode(self, codes: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-        """Integer codes (N, h, w), or one grid (h, w) (with several codebooks, (…, n)) → uint8 mid-point frames
-        (N, H, W), or (H, W), on the world's pixel values; numpy in, numpy out."""
-        n = self.config.n_codebooks
-        dims = (2, 3) if n == 1 else (3, 4)
+        """Integer codes (N, h, w), or one grid (h, w) → uint8 mid-point frames (N, H, W), or (H, W), on the
+        world's pixel values; numpy in, numpy out."""
         codes, numpy_in, single = _array_in(codes, "codes", "decode", "integer codes (N, h, w) or one grid (h, w)",
-                                            dims, integer=True)  # fmt: skip
+                                            (2, 3), integer=True)  # fmt: skip
         if codes.numel() and (int(codes.min()) < 0 or int(codes.max()) >= self.config.codebook_size):
             raise ValueError(f"VQVAE.decode: codes must lie in [0, {self.config.codebook_size}); got values in "
                              f"[{int(codes.min())}, {int(codes.max())}]")  # fmt: skip

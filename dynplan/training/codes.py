@@ -42,7 +42,7 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
     store, checkpoint = str(store), str(Path(checkpoint).resolve())
     model = _model(checkpoint)
     h, w = model.config.grid
-    code_shape = (h, w) if model.config.n_codebooks == 1 else (h, w, model.config.n_codebooks)
+    code_shape = (h, w)
     group = zarr.open_group(store, mode="a", use_consolidated=False)
     frames = group["frames"]
     checksums = committed_checksums(store)

@@ -125,7 +125,7 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
         stage.optimiser.load_state_dict(state["optimiser"])
         epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
         if "torch_rng" in state:
-            torch.set_rng_state(state["torch_rng"])  # e.g. codebook restarts draw from it: resume bit for bit
+            torch.set_rng_state(state["torch_rng"])  # e.g. a codebook initialisation draws from it: resume bit for bit
     elif budget.init_from:
         warm_start(stage.model, budget.init_from, stage.kind)
     write_bytes_atomic(out_dir / "config.json", json.dumps(stage.config, indent=1).encode())

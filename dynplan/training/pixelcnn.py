@@ -54,7 +54,7 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     device = budget.torch_device
     model = ConditionalPixelCNN(config)
     if config.codebook_init:  # a warm start (`init_from`), loaded later, replaces this
-        model.embed_codebook(tokenizer.quantizer.embed[0], torch.Generator().manual_seed(budget.seed))
+        model.embed_codebook(tokenizer.quantizer.embed, torch.Generator().manual_seed(budget.seed))
     model = model.to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train_set = WindowDataset(store, "train", array=codes, context=config.context)

@@ -49,16 +49,15 @@ def evaluate(model: VQVAE, frames: np.ndarray, batch: int = 256) -> dict[str, fl
     for i in range(0, len(frames), batch):
         x = torch.from_numpy(frames[i : i + batch]).to(device)
         c = model.encode(x)
-        codes.append(c.reshape(len(x), -1, model.config.n_codebooks).cpu())
+        codes.append(c.reshape(-1).cpu())
         decoded.append(model.decode(c).cpu().numpy())
     model.train()
-    per_codebook = torch.cat(codes).flatten(0, 1).t()  # (n, codes)
-    counts = torch.stack([torch.bincount(c, minlength=model.config.codebook_size) for c in per_codebook]).double()
-    p = counts / counts.sum(1, keepdim=True)
+    counts = torch.bincount(torch.cat(codes), minlength=model.config.codebook_size).double()
+    p = counts / counts.sum()
     return {
         **{f"val_{k}": v for k, v in frame_errors(frames, np.concatenate(decoded)).items()},
-        "val_codes_used": float((counts > 0).sum(1).double().mean()),  # per codebook, averaged over codebooks
-        "val_perplexity": float(torch.exp(-(p * torch.log(p + 1e-12)).sum(1)).mean()),
+        "val_codes_used": float((counts > 0).sum()),
+        "val_perplexity": float(torch.exp(-(p * torch.log(p + 1e-12)).sum())),
     }
 
 
@@ -148,7 +147,7 @@ def _frame_steps(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndar
     """The usual VQ-VAE training: batches of whole frames through encoder, quantizer and decoder."""
     E, T = frames.shape[:2]
     device = next(model.parameters()).device
-    counts = torch.zeros(config.n_codebooks, config.codebook_size, device=device)
+    counts = torch.zeros(config.codebook_size, device=device)
 
     def step(generator: torch.Generator) -> dict[str, float]:
         e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
