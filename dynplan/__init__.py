@@ -4,7 +4,8 @@ The few entry points a user starts from:
 
     env = dynplan.make_env(agent_speed=1.0)                  # the Gymnasium road world (dynplan/Road-v0)
     model = dynplan.load_world_model(model="default", samples=5)  # the committed VQ-VAE + PixelCNN
-    result = dynplan.plan_episode(1_000_000, "samples5")      # one episode planned by a technique
+    agent = dynplan.AgentSpec(technique="samples5", model="default", rollout_steps=3)  # one validated agent
+    result = dynplan.plan_episode(1_000_000, agent)          # one episode planned by it
 
 Importing dynplan registers the Gymnasium environment `dynplan/Road-v0`.
 """
@@ -14,6 +15,7 @@ from typing import Any
 import gymnasium
 
 from dynplan.env import RoadConfig, RoadEnv, World, generate_world
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.protocol import plan_episode
 from dynplan.evaluation.techniques import TECHNIQUES, register_technique
 from dynplan.models.registry import WORLD_MODELS, register_world_model
@@ -32,6 +34,7 @@ def make_env(**kwargs: Any) -> gymnasium.Env:
 __all__ = [
     "TECHNIQUES",
     "WORLD_MODELS",
+    "AgentSpec",
     "RoadConfig",
     "RoadEnv",
     "World",

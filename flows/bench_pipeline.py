@@ -13,19 +13,27 @@ import tempfile
 import time
 from pathlib import Path
 
-EVAL = {"techniques": ["oracle"], "agent_speeds": [0.5], "rollout_steps": [10], "episodes": 12, "playouts": 1000}
+EVAL = {"techniques": ["oracle"], "agent_speeds": [0.5], "rollout_steps": [10], "episodes": 12}
+PLAYOUTS = 1000
 
 
 def _evaluate_on_cluster(workers: int, log_dir: Path, results_dir: Path) -> float:
     from distributed import LocalCluster
     from prefect_dask import DaskTaskRunner
 
+    from dynplan.evaluation.agent import AgentSpec
+    from dynplan.evaluation.cases import CasePlan
     from flows.evaluate import evaluate_planner
 
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         runner = DaskTaskRunner(address=cluster.scheduler_address)
         start = time.perf_counter()
-        evaluate_planner.with_options(task_runner=runner)(**EVAL, log_dir=str(log_dir), results_dir=str(results_dir))
+        evaluate_planner.with_options(task_runner=runner)(
+            plan=CasePlan(**EVAL),
+            agent=AgentSpec(playouts=PLAYOUTS),
+            log_dir=str(log_dir),
+            results_dir=str(results_dir),
+        )
         return time.perf_counter() - start
 
 

@@ -32,7 +32,8 @@ from prefect.cache_policies import NO_CACHE
 
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
-from dynplan.evaluation.cases import EVAL_SEED_START
+from dynplan.evaluation.agent import AgentSpec
+from dynplan.evaluation.cases import EVAL_SEED_START, CasePlan
 from dynplan.evaluation.table import aggregate, load_results
 from dynplan.files import atomic_path, write_bytes_atomic
 from dynplan.models import checkpoint as checkpoints
@@ -155,11 +156,12 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
     for model in plan.models:
         stages += world_model_task(plan.model_dump(mode="json"), model, store, str(work))
     e = plan.evaluation
+    cases = CasePlan(techniques=e.techniques, models=plan.models, agent_speeds=e.agent_speeds,
+                     rollout_steps=e.rollout_steps, episodes=e.episodes)  # fmt: skip
+    agent = AgentSpec(playouts=e.playouts, model_dir=str(work / "models"))
     timed("evaluate", lambda: evaluate_planner.with_options(task_runner=runner)(
-        techniques=list(e.techniques), agent_speeds=list(e.agent_speeds), rollout_steps=list(e.rollout_steps),
-        episodes=e.episodes, playouts=e.playouts, log_dir=str(eval_logs), results_dir=str(work / "results"),
-        command=command, models=list(plan.models), model_dir=str(work / "models"), artifacts=plan.name),
-        lambda rows: f"{len(rows)} table rows")  # fmt: skip
+        plan=cases, agent=agent, log_dir=str(eval_logs), results_dir=str(work / "results"), command=command,
+        artifacts=plan.name), lambda rows: f"{len(rows)} table rows")  # fmt: skip
     report = report_task(plan.model_dump(mode="json"), str(work), str(eval_logs), command, stages)
     print(f"report: {report}")
     return report

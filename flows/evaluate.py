@@ -26,19 +26,8 @@ from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
 from dynplan.config import ConfigError, field_help
-from dynplan.data.collect import CollectPlan
-from dynplan.env.config import RoadConfig
-from dynplan.evaluation.cases import (
-    AGENT_SPEEDS,
-    EVAL_EPISODES,
-    EVAL_SEED_START,
-    ROLLOUT_STEPS,
-    TABLE1,
-    VALIDATION_SEED_START,
-    Case,
-    cases,
-    table1_cases,
-)
+from dynplan.evaluation.agent import AgentSpec
+from dynplan.evaluation.cases import EVAL_SEED_START, TABLE1, VALIDATION_SEED_START, Case, CasePlan
 from dynplan.evaluation.protocol import pending, run_cases
 from dynplan.evaluation.provenance import begin_run
 from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name
@@ -46,10 +35,7 @@ from dynplan.evaluation.table import aggregate, load_results, render_markdown, w
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
-from dynplan.models.device import check_device
-from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
-from dynplan.models.world_model import world_model_parts, world_model_paths
-from dynplan.planning.mcts import MCTSConfig
+from dynplan.models.registry import WORLD_MODELS
 from dynplan.progress import progress
 from flows.artifacts import ProgressArtifact, publish_table1
 from flows.cli import add_debug_option, run
@@ -71,12 +57,9 @@ def run_role(run: str, first_seed: int) -> str:
 
 
 @task(name="evaluate-episodes", cache_policy=NO_CACHE)
-def evaluate_cases_task(cases: list[dict], log_dir: str, results_dir: str, run: str, playouts: int,
-                        model_dir: str | None = None, caution: dict | None = None,
-                        device: str = "cpu") -> list[dict]:  # fmt: skip
+def evaluate_cases_task(cases: list[dict], log_dir: str, results_dir: str, run: str, agent: dict) -> list[dict]:
     """Play a batch of cases in lockstep; each row is appended as its episode finishes."""
-    return run_cases([Case(**c) for c in cases], log_dir, Run(results_dir, run), playouts, model_dir, caution,
-                     device)  # fmt: skip
+    return run_cases([Case(**c) for c in cases], log_dir, Run(results_dir, run), AgentSpec(**agent))
 
 
 def batches(todo: list[Case], size: int) -> list[list[Case]]:
@@ -95,38 +78,25 @@ def batches(todo: list[Case], size: int) -> list[list[Case]]:
 
 
 @flow(name="evaluate-planner", log_prints=True)
-def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[float] | None = None,
-                     rollout_steps: list[int] | None = None, episodes: int = EVAL_EPISODES,
-                     playouts: int = 100, log_dir: str = "datasets/eval_logs",
-                     results_dir: str = RESULTS_DIR, command: str = DEFAULT_COMMAND,
-                     models: list[str] | None = None, model_dir: str | None = None,
-                     first_seed: int = EVAL_SEED_START,
-                     caution: dict[str, float] | None = None, run: str = EVALUATION_RUN,
-                     batch: int = BATCH, device: str = "cpu", table1: bool = False,
+def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = None,
+                     log_dir: str = "datasets/eval_logs", results_dir: str = RESULTS_DIR, run: str = EVALUATION_RUN,
+                     command: str = DEFAULT_COMMAND, batch: int = BATCH,
                      artifacts: str | None = None) -> list[dict]:  # fmt: skip
-    """Play the cases `run` lacks, in lockstep batches of up to `batch` recorded worlds (one Prefect task each; see
-    `batches`), and write the aggregated table. Learned techniques use the committed weights, or those under
-    `model_dir/<model>/` (a pipeline's own), with their configuration's caution except where `caution` (field →
-    value) overrides it, generating their batches on `device`. Episodes are seeds `first_seed` … (the
-    evaluation's by default). `table1`: every case of the complete Table 1 instead of `techniques` × `models` ×
-    `agent_speeds`. Publishes the episodes' progress and the table as Prefect artifacts, the table keyed
-    `table1-<artifacts>` (default: the run's name)."""
-    techniques = techniques or ["oracle", "zero", "random"]
-    collect_episodes(out=log_dir, episodes=episodes, seed=first_seed)
+    """Play the cases of `plan` that `run` lacks with the agents' settings `agent` (playouts, weights — the
+    committed ones, or a pipeline's own under `agent.model_dir` — caution overrides, device), in lockstep batches of
+    up to `batch` recorded worlds (one Prefect task each; see `batches`), and write the aggregated table. Publishes
+    the episodes' progress and the table as Prefect artifacts, the table keyed `table1-<artifacts>` (default: the
+    run's name)."""
+    plan, agent = plan or CasePlan(), agent or AgentSpec()
+    collect_episodes(out=log_dir, episodes=plan.episodes, seed=plan.first_seed)
     store_run = Run(results_dir, run)
-    ks = tuple(rollout_steps or ROLLOUT_STEPS)
-    if table1:
-        all_cases = table1_cases(episodes, first_seed, ks)
-    else:
-        speeds = tuple(agent_speeds or AGENT_SPEEDS)
-        all_cases = cases(techniques, speeds, ks, episodes, first_seed, tuple(models or ["default"]))
-    begin_run(store_run, run_role(run, first_seed), all_cases, log_dir, playouts, command, model_dir, caution)
-    todo = pending(all_cases, store_run, log_dir, playouts, model_dir, caution)
+    all_cases = plan.cases()
+    begin_run(store_run, run_role(run, plan.first_seed), all_cases, log_dir, command, agent)
+    todo = pending(all_cases, store_run, log_dir, agent)
     work = batches(todo, batch)
     print(f"{len(todo)} episodes to play into {store_run.dir}, in {len(work)} lockstep batches")
     futures = evaluate_cases_task.map([[asdict(c) for c in b] for b in work], unmapped(log_dir), unmapped(results_dir),
-                                      unmapped(run), unmapped(playouts), unmapped(model_dir),
-                                      unmapped(caution), unmapped(device))  # fmt: skip
+                                      unmapped(run), unmapped(agent.model_dump()))  # fmt: skip
     role = store_run.manifest()["role"]
     played = ProgressArtifact(f"episodes played into run {run!r}", len(todo))
     sizes = {future.task_run_id: len(b) for future, b in zip(futures, work, strict=True)}
@@ -136,81 +106,81 @@ def evaluate_planner(techniques: list[str] | None = None, agent_speeds: list[flo
         if role == "evaluation":  # a stopped evaluation still leaves an up-to-date table
             write_table(aggregate(load_results(results_dir)), results_dir)
     rows = aggregate(store_run.current())
-    table = rows
-    if role == "evaluation":  # Table 1 is every evaluation run's
-        table = aggregate(load_results(results_dir))
+    table = aggregate(load_results(results_dir)) if role == "evaluation" else rows  # Table 1: every evaluation run's
+    if role == "evaluation":
         write_table(table, results_dir)
     publish_table1(table, artifacts or run)
     print(f"\nrun {run!r} ({role}):\n" + render_markdown(rows))
     return rows
 
 
-def main(argv: list[str] | None = None) -> list[dict]:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m flows.evaluate", description=__doc__)
     parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=list(TECHNIQUES),
                         metavar="TECHNIQUE", help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
                         + " (default: oracle zero random)")  # fmt: skip
-    parser.add_argument(
-        "--models",
-        nargs="+",
-        default=["default"],
-        choices=list(WORLD_MODELS),
-        help="world-model configurations for the learned techniques ("
-        + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model)
-        + ")",
-    )
-    parser.add_argument("--agent-speeds", nargs="+", type=float, default=list(AGENT_SPEEDS),
-                        help=field_help(RoadConfig, "agent_speed", " ".join(map(str, AGENT_SPEEDS))))  # fmt: skip
-    parser.add_argument("--rollout-steps", nargs="+", type=int, default=list(ROLLOUT_STEPS),
-                        help=field_help(MCTSConfig, "rollout_steps", " ".join(map(str, ROLLOUT_STEPS))))  # fmt: skip
-    parser.add_argument("--episodes", type=int, default=EVAL_EPISODES,
-                        help=field_help(CollectPlan, "episodes", str(EVAL_EPISODES)))  # fmt: skip
-    parser.add_argument("--playouts", type=int, default=100, help=field_help(MCTSConfig, "playouts", "100"))
+    parser.add_argument("--models", nargs="+", default=["default"], choices=list(WORLD_MODELS),
+                        help="world-model configurations for the learned techniques ("
+                        + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model) + ")")  # fmt: skip
+    for name, flag in (("agent_speeds", "--agent-speeds"), ("rollout_steps", "--rollout-steps")):
+        field = CasePlan.model_fields[name]
+        parser.add_argument(flag, nargs="+", type=type(field.default[0]), default=list(field.default),
+                            help=field_help(CasePlan, name, " ".join(map(str, field.default))))  # fmt: skip
+    for name, flag in (("episodes", "--episodes"), ("first_seed", "--first-seed")):
+        default = CasePlan.model_fields[name].default
+        parser.add_argument(flag, type=int, default=default, help=field_help(CasePlan, name))
+    parser.add_argument("--playouts", type=int, default=100, help=field_help(AgentSpec, "playouts"))
     parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
     parser.add_argument("--results-dir", default=RESULTS_DIR, help="the results store (runs and Table 1)")
     parser.add_argument("--run", default=EVALUATION_RUN, help=f"the run to play into (default {EVALUATION_RUN!r}, "
                         "Table 1's; name another for validation or a candidate)")  # fmt: skip
     parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
-    parser.add_argument("--model-dir", help="learned world models under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
-                        "(default: the committed weights)")  # fmt: skip
-    parser.add_argument("--first-seed", type=int, default=EVAL_SEED_START,
-                        help=f"seed of the first episode (default {EVAL_SEED_START:,}, the evaluation's; "
-                        f"{VALIDATION_SEED_START:,}: the validation episodes)")  # fmt: skip
+    parser.add_argument("--model-dir", help=field_help(AgentSpec, "model_dir"))
     for name, info in Caution.model_fields.items():  # the caution's fields, types, ranges and words
         own = "each configuration's own"
         parser.add_argument(f"--{name}", type=info.annotation, help=field_help(Caution, name, own))
-    parser.add_argument("--workers", type=int, help="batches played at once locally (default: one per core)")
+    parser.add_argument("--workers", type=int, help="batches played at once locally, in [1, 256] (default: one per "
+                        "core)")  # fmt: skip
     parser.add_argument("--batch", type=int, default=BATCH, help=f"recorded worlds per lockstep batch, in [1, 10000] "
                         f"(default {BATCH})")  # fmt: skip
     parser.add_argument("--table1", action="store_true", help="play the complete Table 1: "
                         + "; ".join(f"{speed * 2:g}x: {' '.join(names)}" for speed, names in TABLE1.items())
                         + f" (learned ones with {' and '.join(WORLD_MODELS)}); instead of --techniques, --models "
                         "and --agent-speeds")  # fmt: skip
-    parser.add_argument("--device", default="cpu", help="where learned world models generate their batches: cpu "
-                        "or cuda[:N] (default cpu)")  # fmt: skip
+    parser.add_argument("--device", default="cpu", help=field_help(AgentSpec, "device"))
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     add_debug_option(parser)
-    args = parser.parse_args(argv)
+    return parser
+
+
+def _specs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[CasePlan, AgentSpec]:
+    """The plan and the agents' settings, every value checked by their configs before any flow machinery starts
+    (a bad one exits with one line); each learned agent's weights are loaded once to check them."""
     if args.table1:
         given = [f"--{name.replace('_', '-')}" for name in ("techniques", "models", "agent_speeds")
                  if getattr(args, name) != parser.get_default(name)]  # fmt: skip
         if given:
             parser.error(f"--table1 plays the table's own techniques, models and speeds; drop {' '.join(given)}")
-        args.techniques = sorted({name for names in TABLE1.values() for name in names})
-        args.models, args.agent_speeds = list(WORLD_MODELS), sorted(TABLE1)
     overrides = {name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None}
-    try:  # the configs' own validation, before any flow machinery starts: one source for every range
-        for speed in args.agent_speeds:
-            RoadConfig(agent_speed=speed)
-        for k in args.rollout_steps:
-            MCTSConfig(rollout_steps=k, playouts=args.playouts)
-        CollectPlan(episodes=args.episodes, seed=args.first_seed)
-        Caution(**overrides)
-        if any(TECHNIQUES[t].world_model for t in args.techniques):
-            for model in args.models:  # the caution each configuration plays with fits its tokenizer
-                caution_for(model, overrides).check_fits(world_model_spec(model).tokenizer.local, model)
-    except ConfigError as error:
-        parser.error(str(error))
+    try:
+        plan = CasePlan(techniques=args.techniques, models=args.models, agent_speeds=args.agent_speeds,
+                        rollout_steps=args.rollout_steps, episodes=args.episodes, first_seed=args.first_seed,
+                        table1=args.table1)  # fmt: skip
+        Caution(**overrides)  # its ranges, named as the caution's
+        agent = AgentSpec(playouts=args.playouts, model_dir=args.model_dir, caution=overrides, device=args.device)
+        agents = [agent.for_case(t, m, None, 0) for t, m in plan.pairs()]  # each technique and configuration
+        for one in agents:
+            one.check_weights()
+    except CheckpointError as error:  # (a ValueError too: named first)
+        parser.error(f"--model-dir {args.model_dir}: {error}" if args.model_dir else str(error))
+    except (ConfigError, ValueError) as error:
+        parser.error(str(error).removeprefix("AgentSpec: "))
+    return plan, agent
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = _parser()
+    args = parser.parse_args(argv)
     try:
         check_run_name(args.run)
     except StoreError as error:
@@ -222,28 +192,21 @@ def main(argv: list[str] | None = None) -> list[dict]:
         parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
     if not 1 <= args.batch <= 10_000:
         parser.error(f"--batch={args.batch} is invalid; valid range [1, 10000]")
-    try:
-        check_device(args.device)
-    except ValueError as error:
-        parser.error(f"--device: {error}")
-    if any(TECHNIQUES[t].world_model for t in args.techniques):
-        for model in args.models:  # missing, damaged, foreign or mismatched weights: one line naming the file
-            try:
-                world_model_parts(world_model_paths(model, args.model_dir), model)
-            except CheckpointError as error:
-                parser.error(f"--model-dir {args.model_dir}: {error}" if args.model_dir else str(error))
+    plan, agent = _specs(parser, args)
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
     if not dask_address(args.dask_address):  # the local pool's episodes share the cores; more threads only contend
         cores = os.cpu_count() or 1
         torch.set_num_threads(max(1, cores // (args.workers or cores)))
     runner = task_runner(dask_address(args.dask_address), args.workers)
     rows = evaluate_planner.with_options(task_runner=runner)(
-        techniques=args.techniques, agent_speeds=args.agent_speeds, rollout_steps=args.rollout_steps,
-        episodes=args.episodes, playouts=args.playouts, log_dir=args.log_dir, results_dir=args.results_dir,
-        command=command, models=args.models, model_dir=args.model_dir, first_seed=args.first_seed,
-        caution=overrides or None,
-        run=args.run, batch=args.batch, device=args.device, table1=args.table1,
-    )  # fmt: skip
+        plan=plan,
+        agent=agent,
+        log_dir=args.log_dir,
+        results_dir=args.results_dir,
+        run=args.run,
+        command=command,
+        batch=args.batch,
+    )
     if args.json:
         print(json.dumps(rows))
     return rows

@@ -14,7 +14,8 @@ from pathlib import Path
 
 from prefect import flow
 
-from dynplan.config import ConfigError
+from dynplan.config import ConfigError, field_help
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra, require
@@ -26,39 +27,24 @@ from flows.cli import add_debug_option, run
 
 
 @flow(name="replay-episode", log_prints=True)
-def replay_episode(
-    log: str,
-    planner: str = "oracle",
-    agent_speed: float = 1.0,
-    rollout_steps: int = 3,
-    playouts: int = 100,
-    out: str | None = None,
-    gif: str | None = None,
-    seed: int = 0,
-    model: str = "default",
-    samples: int = 0,
-    futures: int = 0,
-    model_dir: str | None = None,
-    live_port: int | None = None,
-    live_wait_s: float = 30.0,
-    live_fps: float = 8.0,
-) -> dict:
-    """Replay one recorded episode through a planner; with `live_port`, also serve it live to Foxglove."""
+def replay_episode(log: str, agent: AgentSpec | None = None, agent_speed: float = 1.0, out: str | None = None,
+                   gif: str | None = None, live_port: int | None = None, live_wait_s: float = 30.0,
+                   live_fps: float = 8.0) -> dict:  # fmt: skip
+    """Replay one recorded episode through `agent`; with `live_port`, also serve it live to Foxglove."""
     with LiveView(port=live_port) if live_port is not None else nullcontext() as view:
         if view is not None:
             print(f"serving the episode live on {view.url} (Foxglove: Open connection, Foxglove WebSocket); "
                   f"waiting up to {live_wait_s:g} s for a viewer")  # fmt: skip
             if not view.wait_for_viewer(live_wait_s):
                 print("no viewer connected; replaying anyway")
-        result = replay(log, planner, agent_speed, rollout_steps, playouts, out, gif, seed, model, samples, futures,
-                        model_dir, view, 0.0 if view is None else 1.0 / live_fps)  # fmt: skip
+        result = replay(log, agent, agent_speed, out, gif, view, 0.0 if view is None else 1.0 / live_fps)
     result = result.to_dict()
     print(f"{result['outcome']} after {result['steps']} steps; decision {result['decision_ms_median']:.3f} ms "
           f"(median), {result['decision_ms_mean']:.3f} ms (mean); replay log: {result['out']}")  # fmt: skip
     return result
 
 
-def main(argv: list[str] | None = None) -> dict:
+def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m flows.replay", description=__doc__)
     parser.add_argument("log", help="episode log (.mcap) from flows.collect")
     parser.add_argument(
@@ -70,18 +56,17 @@ def main(argv: list[str] | None = None) -> dict:
         + "), or model: the learned model with --samples and --futures (default oracle)",
     )
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS), help="learned model configuration")
-    parser.add_argument("--samples", type=int, default=0, help="decoder samples merged by the learned model (0: Mid)")
-    parser.add_argument("--futures", type=int, default=0, help="code futures sampled from the prior and merged")
+    for name in ("samples", "futures", "rollout_steps", "playouts", "device"):
+        field = AgentSpec.model_fields[name]
+        parser.add_argument(f"--{name.replace('_', '-')}", type=type(field.default), default=field.default,
+                            help=field_help(AgentSpec, name))  # fmt: skip
     parser.add_argument("--agent-speed", type=float, default=1.0, help="1.0 (the paper's 2×) or 0.5 (1×)")
-    parser.add_argument("--rollout-steps", type=int, default=3, help="search horizon k (default 3)")
-    parser.add_argument("--playouts", type=int, default=100, help="MCTS playouts per decision (default 100)")
     parser.add_argument(
         "--out", help="replay MCAP to write (default: ../replays/EPISODE.replay-PLANNER.mcap from the log)"
     )
     parser.add_argument("--gif", help="also write a GIF: observed | true future | predicted | error")
-    parser.add_argument("--model-dir", help="learned weights under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
-                        "(default: the committed ones)")  # fmt: skip
-    parser.add_argument("--seed", type=int, default=0, help="seed of the planner's own randomness (>= 0)")
+    parser.add_argument("--model-dir", help=field_help(AgentSpec, "model_dir"))
+    parser.add_argument("--seed", type=int, default=0, help=field_help(AgentSpec, "seed"))
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.add_argument("--live", action="store_true",
                         help="also serve the episode over the Foxglove WebSocket protocol while it is planned "
@@ -91,11 +76,21 @@ def main(argv: list[str] | None = None) -> dict:
                         help="seconds to wait for a viewer to subscribe before it starts (default 30)")  # fmt: skip
     parser.add_argument("--live-fps", type=float, default=8.0, help="decisions shown per second at most (default 8)")
     add_debug_option(parser)
-    args = parser.parse_args(argv)
-    out = args.out or str(default_outputs(args.log, args.planner, args.model, args.samples, args.futures))
+    return parser
+
+
+def _agent(args: argparse.Namespace) -> AgentSpec:
+    """The agent the command line describes (a ConfigError naming a bad value)."""
+    return AgentSpec(technique=args.planner, model=args.model, model_dir=args.model_dir, samples=args.samples,
+                     futures=args.futures, playouts=args.playouts, rollout_steps=args.rollout_steps,
+                     device=args.device, seed=args.seed)  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = _parser().parse_args(argv)
     try:  # fail fast, with one line, before any flow machinery starts
-        if not 0 <= args.seed < 2**32:
-            raise ValueError(f"--seed={args.seed} is invalid; valid range [0, 2**32)")
+        agent = _agent(args)
+        out = args.out or str(default_outputs(args.log, agent))
         if args.live:
             if not 0 <= args.live_port < 65536:
                 raise ValueError(f"--live-port={args.live_port} is invalid; valid range [0, 65535]")
@@ -107,14 +102,12 @@ def main(argv: list[str] | None = None) -> dict:
             if Path(args.gif).resolve() == Path(out).resolve():
                 raise ValueError(f"--gif {args.gif}: is the path of --out too; give the GIF a path of its own")
             check_output(args.gif, "--gif", "file", inputs=(args.log,))
-        prepare(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, args.model, args.samples,
-                args.futures, args.model_dir)  # fmt: skip
+        prepare(args.log, agent, args.agent_speed)
     except (LogError, ConfigError, ValueError, MissingExtra) as error:
         print(f"error: {error}", file=sys.stderr)
         raise SystemExit(2) from None
-    result = replay_episode(args.log, args.planner, args.agent_speed, args.rollout_steps, args.playouts, out,
-                            args.gif, args.seed, args.model, args.samples, args.futures, args.model_dir,
-                            args.live_port if args.live else None, args.live_wait, args.live_fps)  # fmt: skip
+    result = replay_episode(args.log, agent, args.agent_speed, out, args.gif, args.live_port if args.live else None,
+                            args.live_wait, args.live_fps)  # fmt: skip
     if args.json:
         print(json.dumps(result))
     return result

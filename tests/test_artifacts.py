@@ -18,12 +18,15 @@ def test_keys_hold_only_what_prefect_accepts(name, key):
 
 
 def test_an_evaluation_publishes_its_table_and_progress(tmp_path, prefect_api):
+    from dynplan.evaluation.agent import AgentSpec
+    from dynplan.evaluation.cases import CasePlan
     from flows.evaluate import evaluate_planner
 
     for i in range(2):
         record_episode(tmp_path / "logs", EVAL_SEED_START + i)
-    kwargs = dict(techniques=["oracle", "random"], agent_speeds=[1.0], rollout_steps=[1], episodes=2, playouts=5,
-                  log_dir=str(tmp_path / "logs"), results_dir=str(tmp_path / "results"), run="trial_run")  # fmt: skip
+    plan = CasePlan(techniques=["oracle", "random"], agent_speeds=[1.0], rollout_steps=[1], episodes=2)
+    kwargs = dict(plan=plan, agent=AgentSpec(playouts=5), log_dir=str(tmp_path / "logs"),
+                  results_dir=str(tmp_path / "results"), run="trial_run")  # fmt: skip
     rows = evaluate_planner(**kwargs)
     (table,) = read_artifacts(key="table1-trial-run")
     assert table.type == "table" and json.loads(table.data) == [

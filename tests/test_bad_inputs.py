@@ -75,7 +75,7 @@ CASES = [
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/things"], "--out {root}/things: is a folder"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/a_file/x.mcap"], "is a file, so nothing can"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/r.mcap", "--seed", "-1"],
-     "--seed=-1 is invalid"),
+     "seed=-1 is invalid"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/r.mcap", "--planner", "mid", "--model-dir",
                 "{root}/things"], "no world model checkpoints at {root}/things/default/vqvae.pt"),
     ("train", ["vqvae", "--set", "codebook_size=notjson"],

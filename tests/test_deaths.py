@@ -54,7 +54,7 @@ def dying_case(tmp_path_factory):
     logs, results = tmp_path_factory.mktemp("logs"), tmp_path_factory.mktemp("results")
     record_episode(logs, DYING_SEED)
     run, dying = Run(results), [Case("zero", 1.0, k, DYING_SEED) for k in (1, 3)]
-    begin_run(run, "evaluation", dying, logs, 100, "test")
+    begin_run(run, "evaluation", dying, logs, "test")
     for case in dying:
         assert run_case(case, logs, run)["outcome"] == "death"
     return logs, results

@@ -11,7 +11,8 @@ from PIL import Image
 
 from dynplan.config import ConfigError
 from dynplan.data.collect import log_path, record_episode
-from dynplan.evaluation.cases import EVAL_SEED_START, Case, cases
+from dynplan.evaluation.agent import AgentSpec
+from dynplan.evaluation.cases import EVAL_SEED_START, Case, CasePlan, cases
 from dynplan.evaluation.protocol import case_agent, pending, run_case, run_cases
 from dynplan.evaluation.replay import replay
 from dynplan.evaluation.store import Run
@@ -102,8 +103,8 @@ def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path,
     from flows.evaluate import evaluate_planner
 
     results = tmp_path / "results"
-    kwargs = dict(techniques=["oracle", "random"], agent_speeds=[1.0], rollout_steps=[1, 3], episodes=2,
-                  log_dir=str(eval_logs), results_dir=str(results))  # fmt: skip
+    plan = CasePlan(techniques=["oracle", "random"], agent_speeds=[1.0], rollout_steps=[1, 3], episodes=2)
+    kwargs = dict(plan=plan, log_dir=str(eval_logs), results_dir=str(results))
     rows = evaluate_planner(**kwargs)
     assert {(r["technique"], r["rollout_steps"]) for r in rows} == {("oracle", 1), ("oracle", 3), ("random", None)}
     keys = {"technique", "agent_speed", "rollout_steps", "episodes", "G", "T", "D", "S_mean", "S_std",
@@ -123,14 +124,14 @@ def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path,
     write_table(rows, tmp_path / "again")
     assert (tmp_path / "again" / "table1.md").read_bytes() == (results / "table1.md").read_bytes()
     # a validation run is a run of its own, and Table 1 does not count it
-    evaluate_planner(**{**kwargs, "rollout_steps": [1], "first_seed": EVAL_SEED_START, "run": "other"})
+    evaluate_planner(**{**kwargs, "plan": plan.model_copy(update={"rollout_steps": (1,)}), "run": "other"})
     assert Run(results, "other").manifest()["role"] == "candidate" and len(load_results(results)) == 6
 
 
 def test_replay_round_trips_through_the_reader(tmp_path, eval_logs):
     log = log_path(eval_logs, EVAL_SEED_START)
     out, gif = tmp_path / "replay.mcap", tmp_path / "replay.gif"
-    result = replay(log, "oracle", agent_speed=1.0, rollout_steps=3, out=out, gif=gif)
+    result = replay(log, AgentSpec(technique="oracle", rollout_steps=3), agent_speed=1.0, out=out, gif=gif)
     assert result.outcome in {"goal", "timeout", "death"} and result.steps >= 1
     recorded, replayed = read_episode_log(log), read_episode_log(out)
     np.testing.assert_array_equal(replayed.frames, recorded.frames[:203])
@@ -153,9 +154,9 @@ def test_replay_errors(tmp_path, eval_logs):
     with pytest.raises(LogError, match="holds 407 frames; agent speed 0.25 needs 814"):
         replay(log, agent_speed=0.25)
     with pytest.raises(ConfigError, match="rollout_steps=0 is invalid"):
-        replay(log, rollout_steps=0)
-    with pytest.raises(ValueError, match="planner must be one of"):
-        replay(log, planner="psychic")
+        AgentSpec(technique="oracle", rollout_steps=0)
+    with pytest.raises(ConfigError, match="technique must be one of"):
+        AgentSpec(technique="psychic")
 
 
 @pytest.mark.slow
@@ -178,11 +179,12 @@ def test_replay_command_line(tmp_path, eval_logs):
 
 def test_results_are_reused_only_for_the_same_playouts_and_log(tmp_path, eval_logs):
     case, run = Case("oracle", 1.0, 1, EVAL_SEED_START), Run(tmp_path)
-    first = run_case(case, eval_logs, run, playouts=10)
-    assert run_case(case, eval_logs, run, playouts=10) == first
-    assert pending([case], run, eval_logs, playouts=10) == []
-    assert pending([case], run, eval_logs, playouts=20) == [case]  # the flow replays what changed
-    again = run_case(case, eval_logs, run, playouts=20)
+    ten, twenty = AgentSpec(playouts=10), AgentSpec(playouts=20)
+    first = run_case(case, eval_logs, run, ten)
+    assert run_case(case, eval_logs, run, ten) == first
+    assert pending([case], run, eval_logs, ten) == []
+    assert pending([case], run, eval_logs, twenty) == [case]  # the flow replays what changed
+    again = run_case(case, eval_logs, run, twenty)
     assert again["playouts"] == 20 and len(again["log_sha256"]) == 64
     with pytest.raises(ValueError, match="mix playouts values"):
         aggregate([first, again])
@@ -213,6 +215,8 @@ def test_the_search_never_looks_past_the_timeout_frame(eval_logs):
 def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch):
     import torch
 
+    import dynplan.evaluation.agent as agent_module
+    import dynplan.evaluation.techniques as techniques
     import dynplan.models.world_model as world_model
     from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
     from dynplan.models.registry import WORLD_MODELS
@@ -222,30 +226,34 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
                                   likelihood="categorical", local=True))  # fmt: skip
     prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=2, condition_channels=8))
-    monkeypatch.setattr(world_model, "world_model_parts", lambda paths, model: (tokenizer, prior))
+    for module in (world_model, techniques, agent_module):
+        monkeypatch.setattr(module, "world_model_parts", lambda paths, model: (tokenizer, prior))
+    five = AgentSpec(playouts=5)
     all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]
     run = Run(tmp_path)
-    records = [run_case(c, eval_logs, run, playouts=5) for c in all_cases]
+    records = [run_case(c, eval_logs, run, five) for c in all_cases]
     assert records[0]["world_model_sha256"] == "missing+missing" or "+" in records[0]["world_model_sha256"]
     assert records[0]["occupancy"] == WORLD_MODELS["default"].caution.occupancy > 0  # a result says its caution
     stale = {k: v for k, v in records[0].items() if k != "occupancy"}  # played before the threshold existed
     old = Run(tmp_path, "old")
     old.append(stale)
-    assert pending(all_cases[:1], old, eval_logs, playouts=5) == [all_cases[0]]
-    other = run_case(all_cases[0], eval_logs, run, playouts=5, caution={"occupancy": 0.3})  # being validated
+    assert pending(all_cases[:1], old, eval_logs, five) == [all_cases[0]]
+    validated = AgentSpec(playouts=5, caution={"occupancy": 0.3})  # being validated
+    other = run_case(all_cases[0], eval_logs, run, validated)
     assert other["occupancy"] == 0.3
-    assert pending(all_cases, run, eval_logs, playouts=5, caution={"occupancy": 0.3}) == []
-    assert pending(all_cases, run, eval_logs, playouts=5, caution={"occupancy": 0.0}) == [all_cases[0]]
-    assert pending(all_cases, run, eval_logs, playouts=5) == []  # each provenance's row is kept
-    widened = run_case(all_cases[0], eval_logs, run, playouts=5, caution={"occupancy": 0.3, "margin": 2})
+    assert pending(all_cases, run, eval_logs, validated) == []
+    assert pending(all_cases, run, eval_logs, AgentSpec(playouts=5, caution={"occupancy": 0.0})) == [all_cases[0]]
+    assert pending(all_cases, run, eval_logs, five) == []  # each provenance's row is kept
+    widened = run_case(all_cases[0], eval_logs, run, AgentSpec(playouts=5, caution={"occupancy": 0.3, "margin": 2}))
     assert (widened["occupancy"], widened["margin"]) == (0.3, 2)
     assert len(run.rows()) == 4
     devices = []  # the device reaches every learned model an evaluation builds, and is no part of provenance
     monkeypatch.setattr(world_model, "check_device", lambda name: devices.append(name) or name)
-    assert run_cases(all_cases, eval_logs, run, playouts=5, device="cuda:1") == records  # played: found
+    monkeypatch.setattr(agent_module, "check_device", lambda name: name)
+    assert run_cases(all_cases, eval_logs, run, AgentSpec(playouts=5, device="cuda:1")) == records  # played: found
     _, forward = case_agent(all_cases[0], read_episode_log(log_path(eval_logs, EVAL_SEED_START)).world(),
-                            device="cuda:1")  # fmt: skip
+                            AgentSpec(device="cuda:1"))  # fmt: skip
     assert forward.device == "cuda:1" and devices == ["cuda:1"]
     rows = aggregate(records)
     assert {(r["technique"], r["model"]) for r in rows} == {("samples5", "default"), ("oracle", None)}
@@ -260,7 +268,8 @@ def test_replay_with_the_learned_model_names_missing_checkpoints(eval_logs, tmp_
     from dynplan.models.checkpoint import CheckpointError
 
     with pytest.raises(CheckpointError, match=r"no world model checkpoints at .*paper/vqvae.pt"):
-        replay(log_path(eval_logs, EVAL_SEED_START), "model", model="paper", model_dir=str(tmp_path))
+        agent = AgentSpec(technique="model", model="paper", model_dir=str(tmp_path))
+        replay(log_path(eval_logs, EVAL_SEED_START), agent)
 
 
 def test_replay_plans_with_the_committed_paper_world_model(eval_logs, tmp_path):
@@ -268,8 +277,8 @@ def test_replay_plans_with_the_committed_paper_world_model(eval_logs, tmp_path):
 
     if not pretrained_path("pixelcnn", "paper").exists():
         pytest.skip("no committed paper prior")
-    result = replay(log_path(eval_logs, EVAL_SEED_START), "model", model="paper", samples=5, rollout_steps=1,
-                    playouts=20, out=tmp_path / "replay.mcap")  # fmt: skip
+    agent = AgentSpec(technique="model", model="paper", samples=5, rollout_steps=1, playouts=20)
+    result = replay(log_path(eval_logs, EVAL_SEED_START), agent, out=tmp_path / "replay.mcap")
     assert result.outcome in ("goal", "death", "timeout") and result.steps > 0
     replayed = read_episode_log(tmp_path / "replay.mcap")
     assert len(replayed.imagined) == result.steps and next(iter(replayed.imagined.values())).shape == (1, 48, 48)
@@ -302,7 +311,7 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
         (["--run", "../x"], "--run: run name '../x' is invalid"),
         (["--first-seed", "-1"], "seed"),
         (["--table1", "--techniques", "mid", "--agent-speeds", "0.5"], "drop --techniques --agent-speeds"),
-        (["--device", "tpu"], "--device: device must be"),
+        (["--device", "tpu"], "device='tpu' is invalid (value error, device must be a torch device"),
     ],
 )
 def test_evaluate_command_line_names_bad_validation_settings(argv, message, capsys):

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from dynplan.data.collect import log_path, record_episode
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.replay import replay
 from dynplan.evaluation.table import render_markdown
@@ -66,9 +67,9 @@ def test_registered_world_model_and_technique_run_through_evaluate_table_and_rep
     assert "| 2× persistence (ours) |" in table and "| 2× mid [tiny] (ours) |" in table
     assert table.index("mid [tiny]") < table.index("persistence")  # a registered technique comes after the rest
     log = log_path(out / "logs", EVAL_SEED_START)
-    assert replay(log, "persistence", rollout_steps=1, playouts=10, out=out / "p.mcap").steps > 0
-    learned = replay(log, "mid", model="tiny", model_dir=str(out / "models"), rollout_steps=1, playouts=10,
-                     out=out / "m.mcap")  # fmt: skip
+    assert replay(log, AgentSpec(technique="persistence", rollout_steps=1, playouts=10), out=out / "p.mcap").steps > 0
+    tiny = AgentSpec(technique="mid", model="tiny", model_dir=str(out / "models"), rollout_steps=1, playouts=10)
+    learned = replay(log, tiny, out=out / "m.mcap")
     assert learned.outcome in {"goal", "timeout", "death"}
 
 

@@ -10,6 +10,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from dynplan.data.collect import record_episode
 from dynplan.env.agent import ACTION_ANGLES_DEG
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.replay import replay
 from dynplan.logs import read_episode_log
@@ -24,7 +25,7 @@ def replayed(tmp_path_factory):
     folder = tmp_path_factory.mktemp("fox")
     log = record_episode(folder / "logs", EVAL_SEED_START).path
     out = folder / "replay.mcap"
-    result = replay(log, "oracle", rollout_steps=3, playouts=PLAYOUTS, out=out)
+    result = replay(log, AgentSpec(technique="oracle", rollout_steps=3, playouts=PLAYOUTS), out=out)
     return out, result
 
 

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.logs.format import TOPIC_FRAME, TOPIC_SEARCH, layout_topics
 
 pytest.importorskip("foxglove")
@@ -62,8 +63,8 @@ def test_the_live_view_serves_a_replay_as_it_is_planned(recorded_logs, tmp_path)
 
         def play() -> None:
             view.wait_for_viewer(60)
-            done.append(replay(recorded_logs / "episode_0000000000.mcap", "oracle", out=tmp_path / "r.mcap",
-                               live=view, pace_s=0.01))  # fmt: skip
+            done.append(replay(recorded_logs / "episode_0000000000.mcap", AgentSpec(technique="oracle"),
+                               out=tmp_path / "r.mcap", live=view, pace_s=0.01))  # fmt: skip
 
         player = threading.Thread(target=play)
         player.start()

@@ -8,6 +8,7 @@ from hypothesis.extra.numpy import arrays
 
 from dynplan.analysis.parts import VIEWS, play_views, swap_parts
 from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.protocol import plan_episode
 
 pixels = st.sampled_from([FREE, GOAL_VALUE, 45, 144])
@@ -34,4 +35,6 @@ def test_the_learned_view_replays_the_evaluated_case():
     played = play_views("samples5", "default", 1.0, 1, seeds)
     assert set(played) == set(VIEWS) and all(set(o) == set(seeds) for o in played.values())
     for seed in seeds:
-        assert played["learned"][seed] == plan_episode(seed, "samples5", "default", 1.0, 1).outcome
+        assert (
+            played["learned"][seed] == plan_episode(seed, AgentSpec(technique="samples5", rollout_steps=1), 1.0).outcome
+        )

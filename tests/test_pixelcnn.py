@@ -168,8 +168,8 @@ def test_the_kernels_weights_are_named_as_the_kernel_takes_them_and_follow_the_m
     from dynplan.models.generation import KernelWeights, _generate_grid, generate_fast, kernel_weights
 
     params = list(inspect.signature(_generate_grid.py_func).parameters)
-    inputs = ["cond_v", "cond_h", "temperature", "uniforms", "table", "expected", "codes"]
-    assert params[:7] == inputs and params[7:] == list(KernelWeights._fields)
+    assert params == ["cond_v", "cond_h", "temperature", "uniforms", "table", "expected", "codes", "weights"]
+    assert isinstance(kernel_weights(ConditionalPixelCNN(SMALL)), KernelWeights)  # read by name: one structure
     torch.manual_seed(0)
     model = ConditionalPixelCNN(SMALL.model_copy(update={"codebook_size": 16})).eval()
     context = torch.randint(0, 16, (2, 4, 6, 6))

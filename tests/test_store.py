@@ -14,6 +14,7 @@ from dynplan.data.collect import log_path, record_episode
 from dynplan.data.datasets import FrameDataset, WindowDataset, is_validation
 from dynplan.data.store import list_logs
 from dynplan.env import RoadConfig, generate_world
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.logs import LogError, read_episode_log
 
 RECORDING = RoadConfig(agent_speed=0.5)
@@ -169,7 +170,7 @@ def test_replays_and_second_logs_of_a_seed_are_refused(tmp_path, recorded_logs):
 
     logs = tmp_path / "logs"
     shutil.copytree(recorded_logs, logs)
-    replay(log_path(logs, 1), "random", out=logs / "episode_1.replay.mcap")
+    replay(log_path(logs, 1), AgentSpec(technique="random"), out=logs / "episode_1.replay.mcap")
     world = read_episode_log(log_path(logs, 2)).world()
     altered = world.frames.copy()
     altered[100, 0, 0] = 144  # same seed and geometry, different content

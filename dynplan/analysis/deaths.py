@@ -26,6 +26,7 @@ import numpy as np
 
 from dynplan.data.collect import log_path
 from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import ROLLOUT_STEPS, Case
 from dynplan.evaluation.protocol import case_agent
 from dynplan.evaluation.techniques import TECHNIQUES
@@ -87,7 +88,8 @@ def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str |
     """Replay a case whose recorded outcome is a death and classify it (raises if the replay does not die).
     `caution`: the settings the learned model played with (`recorded_caution` of its result)."""
     world = read_episode_log(log_path(log_dir, case.seed)).world()
-    planner, model = case_agent(case, world, playouts, model_dir, caution)
+    spec = AgentSpec(playouts=playouts, model_dir=model_dir, caution=dict(caution or {}))
+    planner, model = case_agent(case, world, spec)
     last: dict = {}
 
     def remember(t: int, position: np.ndarray, prediction, decision) -> None:

@@ -21,12 +21,13 @@ import json
 import shlex
 import sys
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from dynplan.env.config import FREE, GOAL_VALUE, RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import EVAL_SEED_START, Case
 from dynplan.evaluation.protocol import case_agent
 from dynplan.evaluation.techniques import TECHNIQUES
@@ -84,10 +85,10 @@ class SwappedModel:
 
 
 def play_views(technique: str, model: str, agent_speed: float, rollout_steps: int, seeds: Sequence[int],
-               views: Sequence[str] = VIEWS, caution: Mapping[str, float] | None = None, playouts: int = 100,
-               model_dir: str | None = None) -> dict[str, dict[int, str]]:  # fmt: skip
+               views: Sequence[str] = VIEWS, spec: AgentSpec | None = None) -> dict[str, dict[int, str]]:  # fmt: skip
     """Each view's outcome ("goal" | "timeout" | "death") per episode seed, the planners seeded as the
-    evaluation's case of `technique` seeds them; `model_dir`: other weights, as `flows.evaluate --model-dir`."""
+    evaluation's case of `technique` seeds them; `spec`: the agents' settings (playouts, caution overrides, other
+    weights as `flows.evaluate --model-dir`)."""
     from dynplan.progress import progress
 
     out: dict[str, dict[int, str]] = {}
@@ -97,7 +98,7 @@ def play_views(technique: str, model: str, agent_speed: float, rollout_steps: in
         planners, models = [], []
         for world in worlds:
             case = Case(technique, agent_speed, rollout_steps, int(world.seed), model)
-            planner, learned = case_agent(case, world, playouts, model_dir, caution)
+            planner, learned = case_agent(case, world, spec)
             planners.append(planner)
             models.append(SwappedModel(learned, world.frames, view))
         outcomes: dict[int, str] = {}
@@ -134,9 +135,8 @@ def main(argv: list[str] | None = None) -> dict:
     seeds = range(args.first_seed, args.first_seed + args.episodes)
     rows = []
     for k in args.rollout_steps:
-        played = play_views(
-            args.technique, args.model, args.agent_speed, k, seeds, args.views, caution, model_dir=args.model_dir
-        )
+        spec = AgentSpec(model_dir=args.model_dir, caution=caution)
+        played = play_views(args.technique, args.model, args.agent_speed, k, seeds, args.views, spec)
         for view, outcomes in played.items():
             counts = Counter(outcomes.values())
             rows.append({"k": k, "view": view, **{o: counts[o] for o in ("goal", "timeout", "death")},

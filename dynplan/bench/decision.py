@@ -38,8 +38,8 @@ def bench_decision(decisions: int = 30, threads: int = 2) -> dict[str, dict[str,
         except CheckpointError:
             torch.manual_seed(0)
             prior = ConditionalPixelCNN(world_model_spec(name).prior)
-            settings = caution_for(name, caution).model_dump()
-            model = LearnedWorldModel(VQVAE(world_model_spec(name).tokenizer), prior, samples=5, **settings)
+            model = LearnedWorldModel(VQVAE(world_model_spec(name).tokenizer), prior, samples=5,
+                                      caution=caution_for(name, caution))  # fmt: skip
             weights = "untrained"
         planner = MCTSPlanner(MCTSConfig(rollout_steps=3), agent_speed=1.0, max_steps=203)
         times = []

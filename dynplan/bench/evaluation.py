@@ -11,6 +11,7 @@ import torch
 
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import VALIDATION_SEED_START, Case
 from dynplan.evaluation.protocol import case_agent
 from dynplan.planning.episode import run_episode, run_episodes
@@ -29,7 +30,8 @@ def bench_evaluation(episodes: int | None = None, threads: int = 2, device: str 
         worlds = [generate_world(RoadConfig(agent_speed=speed), VALIDATION_SEED_START + i) for i in range(count)]
 
         def agents(worlds=worlds, speed=speed, k=k):
-            return [case_agent(Case("samples5", speed, k, w.seed, "default"), w, device=device) for w in worlds]
+            spec = AgentSpec(device=device)
+            return [case_agent(Case("samples5", speed, k, w.seed, "default"), w, spec) for w in worlds]
 
         _, warm_model = agents()[0]
         warm_model.predict(worlds[0].frames[:5], k)  # compile the kernels outside the timings

@@ -25,6 +25,7 @@ import torch
 
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import ROLLOUT_STEPS, TABLE1, VALIDATION_SEED_START, Case
 from dynplan.evaluation.protocol import case_agent
 from dynplan.evaluation.techniques import technique
@@ -70,7 +71,7 @@ def bench_sharing(worlds: int = 4, threads: int = 2, device: str = "cpu") -> dic
     groups = [(name, k) for name in TABLE1[1.0] if technique(name).world_model for k in ROLLOUT_STEPS]
 
     def agents(name: str, k: int) -> list:
-        return [case_agent(Case(name, 1.0, k, w.seed, "default"), w, device=device) for w in recorded]
+        return [case_agent(Case(name, 1.0, k, w.seed, "default"), w, AgentSpec(device=device)) for w in recorded]
 
     _, warm = agents("samples5", 3)[0]
     warm.predict(recorded[0].frames[:5], 3)  # compile the kernels outside the timings

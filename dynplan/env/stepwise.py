@@ -44,17 +44,8 @@ def simulate_world(config: RoadConfig, seed: int, n_frames: int | None = None) -
                 speed = cls.speeds[int(draws.speed_rng.integers(0, SPEED_CHOICES))]
                 direction = int(lanes.direction[lane])
                 x0 = 0.0 if direction > 0 else float(W - 1 - cls.length)
-                live.append(
-                    dict(
-                        row=int(lanes.rows[lane]),
-                        x0=x0,
-                        x=x0,
-                        v=direction * speed,
-                        age=0,
-                        length=cls.length,
-                        value=cls.value,
-                    )
-                )
+                live.append(dict(row=int(lanes.rows[lane]), x0=x0, x=x0, v=direction * speed, age=0,
+                                 length=cls.length, value=cls.value))  # fmt: skip
 
         # The goal moves and reflects off the walls, staying fully inside.
         goal = goal + goal_velocity

@@ -1,6 +1,7 @@
 """Evaluation over recorded episodes (the paper's Table 1 protocol, docs/protocol.md §4): the techniques, the
 cases, the results store with its provenance, Table 1 and replays."""
 
+from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import Case, cases
 from dynplan.evaluation.protocol import pending, plan_episode, run_case
 from dynplan.evaluation.store import Run, StoreError, evaluation_rows
@@ -10,6 +11,7 @@ from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, Technique, re
 __all__ = [
     "TECHNIQUES",
     "AgentInputs",
+    "AgentSpec",
     "Case",
     "Run",
     "StoreError",

@@ -6,8 +6,13 @@ from __future__ import annotations
 import zlib
 from dataclasses import dataclass
 
+from pydantic import Field, model_validator
+
+from dynplan.config import Config
+from dynplan.env.config import RoadConfig
 from dynplan.evaluation.techniques import technique
-from dynplan.models.registry import WORLD_MODELS
+from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.planning.mcts import MCTSConfig
 
 #: The evaluation episodes' seeds: a range of their own, far from training seeds (which start at 0).
 EVAL_SEED_START = 1_000_000
@@ -76,3 +81,40 @@ def table1_cases(episodes: int = EVAL_EPISODES, first_seed: int = EVAL_SEED_STAR
     models = tuple(WORLD_MODELS)
     return [case for speed, names in TABLE1.items()
             for case in cases(list(names), (speed,), rollout_steps, episodes, first_seed, models)]  # fmt: skip
+
+
+class CasePlan(Config):
+    """Which cases an evaluation plays: techniques × world-model configurations × agent speeds × horizons × episodes
+    (seeds `first_seed` …), or with `table1` every case of the complete Table 1 (`TABLE1`, every configuration)."""
+
+    techniques: tuple[str, ...] = Field(("oracle", "zero", "random"), description="registered techniques")
+    models: tuple[str, ...] = Field(("default",), description="world-model configurations of the learned techniques")
+    agent_speeds: tuple[float, ...] = Field(AGENT_SPEEDS, description="agent speeds: 1.0 (2×) and/or 0.5 (1×)")
+    rollout_steps: tuple[int, ...] = Field(ROLLOUT_STEPS, description="horizons k of the searching techniques")
+    episodes: int = Field(EVAL_EPISODES, ge=1, le=10_000, description="episodes per case")
+    first_seed: int = Field(EVAL_SEED_START, ge=0, description="seed of the first episode (validation: 2000000)")
+    table1: bool = Field(False, description="every case of the complete Table 1, whatever the lists above say")
+
+    @model_validator(mode="after")
+    def _check(self) -> CasePlan:
+        for name in self.techniques:
+            technique(name)  # a ValueError naming the known ones
+        for model in self.models:
+            world_model_spec(model)
+        for speed in self.agent_speeds:
+            RoadConfig(agent_speed=speed)
+        for k in self.rollout_steps:
+            MCTSConfig(rollout_steps=k)
+        return self
+
+    def cases(self) -> list[Case]:
+        """Every case of the plan."""
+        ks = tuple(self.rollout_steps)
+        if self.table1:
+            return table1_cases(self.episodes, self.first_seed, ks)
+        return cases(list(self.techniques), tuple(self.agent_speeds), ks, self.episodes, self.first_seed,
+                     tuple(self.models))  # fmt: skip
+
+    def pairs(self) -> list[tuple[str, str | None]]:
+        """Each (technique, world-model configuration) the plan plays (None: a technique without one)."""
+        return sorted({(c.technique, c.model) for c in self.cases()}, key=str)

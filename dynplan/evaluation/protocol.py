@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict
 
 import numpy as np
@@ -16,70 +16,55 @@ import numpy as np
 from dynplan.data.collect import log_path
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World, generate_world
+from dynplan.evaluation.agent import AgentSpec, Planner
 from dynplan.evaluation.cases import Case
 from dynplan.evaluation.provenance import provenance as case_provenance
 from dynplan.evaluation.store import Run, code_version
-from dynplan.evaluation.techniques import AgentInputs, technique
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.planning.episode import EpisodeResult, run_episode, run_episodes
 from dynplan.planning.forward import ForwardModel
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
 
 
-def case_agent(
-    case: Case,
-    world: World,
-    playouts: int = 100,
-    model_dir: str | None = None,
-    caution: Mapping[str, float] | None = None,
-    device: str = "cpu",
-) -> tuple[MCTSPlanner | RandomPlanner, ForwardModel | None]:
-    """The planner and forward model that play `case` on its recorded `world`. `caution`: what overrides a learned
-    model's configuration's own (field → value); `device`: where a learned model generates batches."""
-    inputs = AgentInputs(world, case.model, case.seed, model_dir, caution, device)  # one model seed per world
-    model = technique(case.technique).forward(inputs)
-    if case.rollout_steps is None:
-        return RandomPlanner(case.planner_seed()), model
-    config = MCTSConfig(rollout_steps=case.rollout_steps, playouts=playouts)
-    max_steps = RoadConfig.from_dict(world.config.model_dump(), agent_speed=case.agent_speed).max_steps
-    return MCTSPlanner(config, case.agent_speed, max_steps, seed=case.planner_seed()), model
+def case_agent(case: Case, world: World, spec: AgentSpec | None = None) -> tuple[Planner, ForwardModel | None]:
+    """The planner and forward model that play `case` on its recorded `world` with the settings of `spec`: the
+    world model draws from the world's seed (so the cases of a world share each frame's draws), the planner from
+    the case's own."""
+    agent = (spec or AgentSpec()).for_case(case.technique, case.model, case.rollout_steps, case.seed)
+    return agent.build(world, case.agent_speed, case.planner_seed())
 
 
-def plan_episode(world: World | int, technique_name: str = "samples5", model: str | None = "default",
-                 agent_speed: float = 1.0, rollout_steps: int | None = 3, playouts: int = 100,
-                 caution: Mapping[str, float] | None = None) -> EpisodeResult:  # fmt: skip
-    """Play one episode — a recorded `world`, or the world of a seed — with a technique (`TECHNIQUES`), its planner
-    seeded as the evaluation seeds it; `model`: the world-model configuration of a learned technique (ignored
-    otherwise). Returns the outcome, steps, decision times and the agent's track."""
+def plan_episode(world: World | int, spec: AgentSpec | None = None, agent_speed: float = 1.0) -> EpisodeResult:
+    """Play one episode — a recorded `world`, or the world of a seed — with the agent `spec` (default: samples5 on
+    the default world model at k = 3), its planner seeded as the evaluation seeds it. Returns the outcome, steps,
+    decision times and the agent's track."""
     if isinstance(world, int | np.integer):
         world = generate_world(RoadConfig(agent_speed=agent_speed), int(world))
-    chosen = technique(technique_name)
-    case = Case(technique_name, agent_speed, rollout_steps if chosen.search else None, int(world.seed),
-                model if chosen.world_model else None)  # fmt: skip
-    planner, forward = case_agent(case, world, playouts, caution=caution)
+    spec = spec or AgentSpec()
+    chosen = spec.plans_with
+    case = Case(spec.technique, agent_speed, spec.rollout_steps if chosen.search else None, int(world.seed),
+                spec.model if chosen.world_model else None)  # fmt: skip
+    planner, forward = case_agent(case, world, spec)
     return run_episode(world, planner, forward, agent_speed, case.rollout_steps or 1)
 
 
-def run_case(case: Case, log_dir: str | os.PathLike, run: Run, playouts: int = 100, model_dir: str | None = None,
-             caution: Mapping[str, float] | None = None) -> dict:  # fmt: skip
+def run_case(case: Case, log_dir: str | os.PathLike, run: Run, spec: AgentSpec | None = None) -> dict:
     """Play one case against its recorded episode and append its row to `run` (the batch of one of `run_cases`)."""
-    return run_cases([case], log_dir, run, playouts, model_dir, caution)[0]
+    return run_cases([case], log_dir, run, spec)[0]
 
 
-def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playouts: int = 100,
-              model_dir: str | None = None, caution: Mapping[str, float] | None = None,
-              device: str = "cpu") -> list[dict]:  # fmt: skip
+def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run,
+              spec: AgentSpec | None = None) -> list[dict]:  # fmt: skip
     """Play `cases` against their recorded episodes in one lockstep batch (`run_episodes`: whatever their technique,
     agent speed and k, the learned models on the same weights predict together, and the cases on the same recorded
     world share each prediction of a frame they all see) and append each one's row to `run` the moment its episode
     finishes — or return the run's row of a case, if one was played with the same playouts, against the same log
-    and (learned techniques) the same weights and caution. `model_dir`: where the learned techniques' checkpoints
-    are (see `world_model_paths`); `caution`: what overrides the learned model's configuration's own (field →
-    value, e.g. {"occupancy": 0.05}); `device`: where learned models generate (not part of a row's provenance: the
-    same arithmetic, up to float summation order). A row's `wall_s` is its episode's share of the batch: reading its
-    log, building its agent and its decisions."""
+    and (learned techniques) the same weights and caution. `spec`: the agents' settings each case specialises
+    (playouts, weights, caution overrides, device — not part of a row's provenance: the same arithmetic, up to float
+    summation order). A row's `wall_s` is its episode's share of the batch: reading its log, building its agent
+    and its decisions."""
+    spec = spec or AgentSpec()
     rows: list[dict | None] = [None] * len(cases)
-    provenances = [case_provenance(case, log_dir, playouts, model_dir, caution) for case in cases]
+    provenances = [case_provenance(case, log_dir, spec) for case in cases]
     for i, case in enumerate(cases):
         rows[i] = run.find(asdict(case), provenances[i])
     members = [i for i, row in enumerate(rows) if row is None]
@@ -97,7 +82,7 @@ def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playo
                 raise LogError(source, f"holds seed {log.seed}, but the evaluation case is seed {seed}")
             recorded[seed] = log.world()
         worlds.append(recorded[seed])
-        agents.append(case_agent(cases[i], worlds[-1], playouts, model_dir, caution, device))
+        agents.append(case_agent(cases[i], worlds[-1], spec))
         setup_s.append(time.perf_counter() - start)
 
     def finish(j: int, result: EpisodeResult) -> None:
@@ -119,8 +104,8 @@ def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, playo
     return rows  # type: ignore[return-value]
 
 
-def pending(all_cases: list[Case], run: Run, log_dir: str | os.PathLike, playouts: int = 100,
-            model_dir: str | None = None, caution: Mapping[str, float] | None = None) -> list[Case]:  # fmt: skip
+def pending(all_cases: list[Case], run: Run, log_dir: str | os.PathLike,
+            spec: AgentSpec | None = None) -> list[Case]:  # fmt: skip
     """The cases without a row of the same provenance in `run` (what a resumed evaluation still has to play)."""
-    return [c for c in all_cases
-            if run.find(asdict(c), case_provenance(c, log_dir, playouts, model_dir, caution)) is None]  # fmt: skip
+    spec = spec or AgentSpec()
+    return [c for c in all_cases if run.find(asdict(c), case_provenance(c, log_dir, spec)) is None]

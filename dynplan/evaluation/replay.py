@@ -17,53 +17,34 @@ import numpy as np
 from dynplan.env.agent import FIRST_DECISION_FRAME
 from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
-from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, learned_model, technique
+from dynplan.evaluation.agent import LEARNED, AgentSpec
+from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.logs.format import step_row
 from dynplan.logs.live import LiveView
 from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
 from dynplan.logs.writer import write_episode_log
-from dynplan.models.registry import WORLD_MODELS
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import Prediction
-from dynplan.planning.mcts import Decision, MCTSConfig, MCTSPlanner, RandomPlanner
+from dynplan.planning.mcts import Decision
 from dynplan.render import error_image, side_by_side, write_gif
 
 
 def planners() -> list[str]:
     """What a replay's planner may be: any registered technique, or "model" (the learned world model with the
     samples and futures given)."""
-    return [*TECHNIQUES, "model"]
+    return [*TECHNIQUES, LEARNED]
 
 
-def prepare(
-    log: str | os.PathLike,
-    planner: str,
-    agent_speed: float,
-    rollout_steps: int,
-    playouts: int,
-    model: str = "default",
-    samples: int = 0,
-    futures: int = 0,
-    model_dir: str | None = None,
-) -> tuple[EpisodeLog, RoadConfig, MCTSConfig]:
-    """Check a replay's inputs before running it: the log (LogError), the options (ConfigError/ValueError), and
-    for the learned model its checkpoints (CheckpointError)."""
-    if planner not in planners():
-        raise ValueError(f"planner must be one of {planners()}, got {planner!r}")
-    if planner == "model" or technique(planner).world_model:
-        if model not in WORLD_MODELS or samples < 0 or futures < 0:
-            raise ValueError(f"model must be one of {list(WORLD_MODELS)} and samples, futures >= 0; got "
-                             f"{model!r}, {samples}, {futures}")  # fmt: skip
-        learned_model(
-            model, samples, 0, futures, model_dir
-        )  # loads (and caches) the checkpoints, or says which are missing
-    mcts = MCTSConfig(rollout_steps=rollout_steps, playouts=playouts)
-    config = RoadConfig(agent_speed=agent_speed)  # validates the speed before the log is read
+def prepare(log: str | os.PathLike, agent: AgentSpec, agent_speed: float) -> tuple[EpisodeLog, RoadConfig]:
+    """Check a replay's inputs before running it: a learned agent's checkpoints (CheckpointError), the speed
+    (ConfigError) and the log (LogError): long enough for an episode at that speed."""
+    agent.check_weights()  # loads (and caches) the checkpoints, or says which are missing
+    RoadConfig(agent_speed=agent_speed)  # validates the speed before the log is read
     recorded = read_episode_log(log)
     config = RoadConfig.from_dict(recorded.config.model_dump(), agent_speed=agent_speed)
     if config.max_steps > recorded.n_frames:
         raise LogError(log, f"holds {recorded.n_frames} frames; agent speed {agent_speed:g} needs {config.max_steps}")
-    return recorded, config, mcts
+    return recorded, config
 
 
 @dataclass(frozen=True)
@@ -85,26 +66,18 @@ class ReplayResult:
         return asdict(self)
 
 
-def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float = 1.0, rollout_steps: int = 3,
-           playouts: int = 100, out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None,
-           seed: int = 0, model: str = "default", samples: int = 0, futures: int = 0,
-           model_dir: str | None = None, live: LiveView | None = None,
+def replay(log: str | os.PathLike, agent: AgentSpec | None = None, agent_speed: float = 1.0,
+           out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None, live: LiveView | None = None,
            pace_s: float = 0.0) -> ReplayResult:  # fmt: skip
-    """Run `planner` (a registered technique — oracle, zero, random, mid, samples5, … with world model `model` for
-    a learned one — or "model": the learned world model `model` merging `samples` decoder samples and `futures`
-    sampled futures; its checkpoints under `model_dir/<model>/` if given, else the committed ones) on the episode
-    recorded in `log`. `live`: also publish every frame and decision there as it is planned, at least `pace_s`
-    seconds apart (a viewer follows the episode)."""
-    recorded, config, mcts = prepare(log, planner, agent_speed, rollout_steps, playouts, model, samples, futures,
-                                     model_dir)  # fmt: skip
+    """Run `agent` (default: the oracle) on the episode recorded in `log` at `agent_speed`: the planner and the
+    world model draw from `agent.seed`. `out`: a replay log of the episode (the agent's track, its imagined frames
+    and searches); `gif`: its picture; `live`: also publish every frame and decision there as it is planned, at
+    least `pace_s` seconds apart (a viewer follows the episode)."""
+    agent = agent or AgentSpec(technique="oracle")
+    recorded, config = prepare(log, agent, agent_speed)
     world = recorded.world()
-    if learned := planner == "model":
-        forward = learned_model(model, samples, seed, futures, model_dir)
-    else:
-        chosen = technique(planner)
-        forward = chosen.forward(AgentInputs(world, model if chosen.world_model else None, seed, model_dir))
-    searches = learned or technique(planner).search
-    agent = MCTSPlanner(mcts, agent_speed, config.max_steps, seed) if searches else RandomPlanner(seed)
+    planner, forward = agent.build(world, agent_speed)
+    rollout_steps = agent.rollout_steps
     imagined: dict[int, np.ndarray] = {}
     search: list[dict] = []
     panels: list[np.ndarray] = []
@@ -128,7 +101,7 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
         for t in range(FIRST_DECISION_FRAME):
             live.show(t, world.frames[t], world.goal[t])
 
-    result = run_episode(world, agent, forward, agent_speed, rollout_steps, on_decision=record)
+    result = run_episode(world, planner, forward, agent_speed, rollout_steps, on_decision=record)
     if live is not None:  # where the episode ended
         track, last = result.track, int(result.track.t[-1])
         live.show(last, world.frames[last], world.goal[last], track.position[-1], step=track.step_row(-1))
@@ -138,7 +111,7 @@ def replay(log: str | os.PathLike, planner: str = "oracle", agent_speed: float =
     if gif is not None:
         write_gif(gif, np.stack(panels), fps=8, scale=4)
     ms = np.asarray(result.decision_ms)
-    return ReplayResult(str(log), planner, agent_speed, rollout_steps, result.outcome, result.steps,
+    return ReplayResult(str(log), agent.technique, agent_speed, rollout_steps, result.outcome, result.steps,
                         round(float(np.median(ms)), 4), round(float(ms.mean()), 4),
                         None if out is None else str(out), None if gif is None else str(gif))  # fmt: skip
 
@@ -165,10 +138,11 @@ def _gif_panel(frames: np.ndarray, t: int, position: np.ndarray, prediction: Pre
                          error_image(truth, predicted)])  # fmt: skip
 
 
-def default_outputs(log: str | os.PathLike, planner: str, model: str = "default", samples: int = 0,
-                    futures: int = 0) -> Path:  # fmt: skip
+def default_outputs(log: str | os.PathLike, agent: AgentSpec) -> Path:
     """Default replay log path: a `replays/` folder beside the input's folder (kept apart from recorded
     episodes, so that a folder of logs stays a folder of worlds), named for the episode and the planner."""
     log = Path(log)
-    name = planner if planner != "model" else f"model-{model}-s{samples}-f{futures}"
+    name = agent.technique
+    if agent.technique == LEARNED:
+        name = f"model-{agent.model}-s{agent.samples}-f{agent.futures}"
     return log.parent.parent / "replays" / f"{log.stem}.replay-{name}.mcap"

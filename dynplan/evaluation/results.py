@@ -14,13 +14,13 @@ import os
 from pathlib import Path
 
 from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs
-from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
+from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, write_table
 from dynplan.files import write_bytes_atomic
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python -m dynplan.evaluation.results"
 PREDICTION = "python -m dynplan.analysis.prediction"
-README_MARKER = "<!-- table1: generated from datasets/results/table1.md -->"
+README_MARKER = "<!-- table1: generated from datasets/results/table1.json -->"
 HORIZONS = (1, 3, 5, 10)
 #: The causes of a death, as `dynplan.analysis.deaths` counts them.
 DEATH_CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
@@ -225,14 +225,13 @@ def results_page(results: Path, docs: Path) -> str:
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def readme_with_table(readme: str, table_md: str) -> str:
-    """README.md with the table rows after its marker replaced by those of `table_md`."""
+def readme_with_table(readme: str, rows: list[dict]) -> str:
+    """README.md with the table after its marker replaced by Table 1's compact form (`render_compact`)."""
     if README_MARKER not in readme:
         raise ValueError(f"README.md lacks the marker {README_MARKER!r}")
     head, tail = readme.split(README_MARKER, 1)
     rest = tail.lstrip("\n").split("\n\n", 1)[1] if "\n\n" in tail.lstrip("\n") else ""
-    table = "\n".join(line for line in table_md.splitlines() if line.startswith("|"))
-    return f"{head}{README_MARKER}\n{table}\n\n{rest}"
+    return f"{head}{README_MARKER}\n{render_compact(rows).rstrip()}\n\n{rest}"
 
 
 def main(argv: list[str] | None = None) -> Path:
@@ -244,11 +243,12 @@ def main(argv: list[str] | None = None) -> Path:
                         "('' to leave it)")  # fmt: skip
     args = parser.parse_args(argv)
     results, docs = Path(args.results_dir), Path(args.docs)
-    _, table_md = write_table(aggregate(load_results(results)), results)
+    rows = aggregate(load_results(results))
+    _, table_md = write_table(rows, results)
     page = write_bytes_atomic(docs / "results.md", results_page(results, docs).encode())
     if args.readme:
         readme = Path(args.readme)
-        write_bytes_atomic(readme, readme_with_table(readme.read_text(), table_md.read_text()).encode())
+        write_bytes_atomic(readme, readme_with_table(readme.read_text(), rows).encode())
     print(f"wrote {table_md.parent / 'table1.json'}, {table_md}, {page}" + (f", {args.readme}" if args.readme else ""))
     return page
 

@@ -125,6 +125,32 @@ def render_markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def render_compact(rows: list[dict]) -> str:
+    """The README's summary of `render_markdown`'s table: the oracle and the techniques the paper reports, goals /
+    timeouts / deaths per k — ours, the paper's in brackets — and the random agent's goals against the paper's."""
+    ks = sorted({r["rollout_steps"] for r in rows if r["rollout_steps"] is not None})
+    reported = {(technique, speed) for technique, speed, _ in PAPER_TABLE1}
+    by_key = {(r["technique"], r.get("model"), r["agent_speed"], r["rollout_steps"]): r for r in rows}
+    lines = ["| agent | " + " | ".join(f"k = {k}" for k in ks) + " |", "|" + " --- |" * (len(ks) + 1)]
+    for technique, model, speed in dict.fromkeys((r["technique"], r.get("model"), r["agent_speed"]) for r in rows):
+        label = f"{speed * 2:g}× {technique}" + (f" [{model}]" if model else "")
+        if technique == "random":
+            r0 = by_key[(technique, None, speed, None)]
+            goals = PAPER_RANDOM_GOALS.get(speed)
+            paper = "" if goals is None else f" ({goals} goal{'' if goals == 1 else 's'})"
+            cells = [f"{r0['G']}/{r0['T']}/{r0['D']}{paper}"] + ["″"] * (len(ks) - 1)
+        elif (technique, speed) in reported:
+            cells = []
+            for k in ks:
+                row, paper = by_key.get((technique, model, speed, k)), PAPER_TABLE1.get((technique, speed, k))
+                ours = f"{row['G']}/{row['T']}/{row['D']}" if row else "–"
+                cells.append(ours + (f" ({paper[0]}/{paper[1]}/{paper[2]})" if paper else ""))
+        else:
+            continue
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def write_table(rows: list[dict], results_dir: str | os.PathLike) -> tuple[Path, Path]:
     """Write table1.json and table1.md into `results_dir` (a pure function of `rows`: the same rows write the same
     bytes)."""

@@ -147,82 +147,118 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
         parts = [generate_batched(model, context[s : s + BLOCK_ROWS], temperature, None, weights,
                                   uniforms[s : s + BLOCK_ROWS], table) for s in range(0, B, BLOCK_ROWS)]  # fmt: skip
         return torch.cat(parts) if table is None else tuple(torch.cat(p) for p in zip(*parts, strict=True))
-    device, L = weights.device, len(weights.v_weight)
-    uniforms = uniforms.to(device)
-    home = next(model.parameters()).device  # the conditioning map comes from the model where it lives
-    # Channels-last (H, B · W, c): each row's slice is one matrix for every layer's conditioning at once.
-    condition = model.condition(context.to(home)).to(device).permute(2, 0, 3, 1).reshape(H, B * W, -1)
-    C = weights.embed.shape[1]
-    top = max(weights.v_half)  # every vertical window reaches `top` rows up and columns aside at most
-    # Inputs of each layer's vertical stack, channels-last with `top` zero rows above and zero columns either
-    # side (layer 0: the embedded codes).
-    v_in = torch.zeros(L, B, top + H, top + W + top, C, device=device)
-    # The current row's horizontal features, channels-last with `left` zero columns: h[0] is the embedded codes.
-    left = max(w.shape[0] // C for w in weights.h_weight) - 1
-    h = torch.zeros(L + 1, B, left + W, C, device=device)
-    codes = torch.zeros(B, H, W, dtype=torch.long, device=device)
-    K = weights.embed.shape[0]
-    logits = torch.empty(B, K, device=device)
-    # Buffers every position reuses (a fresh B × K array per operation costs the allocator more than the
-    # arithmetic): the draw's float64 weights and sums, or the argmax's intermediates; the occupancy's softmax.
-    on_cpu = device.type == "cpu"
-    if temperature > 0.0 and on_cpu:  # the kernel's draw, row by row (`draw_rows`), on each position's logits
-        drawn = torch.empty(B, dtype=torch.long)
-        numbers = uniforms.permute(1, 2, 0).contiguous().numpy()  # (H, W, B): each position's numbers contiguous
-        scratch = (np.empty((4, K)), np.empty(K), logits.numpy(), drawn.numpy())
-    elif temperature > 0.0:
-        work, cdf = (torch.empty(B, K, dtype=torch.float64, device=device) for _ in range(2))
-    else:
-        work = torch.empty(B, K, device=device)
-    expected = None
-    if table is not None:
-        probs = torch.empty(B, K, device=device)
-        table = table.to(device=device, dtype=torch.float32)
-        expected = torch.empty(B, H, W, table.shape[1], device=device)
-    # Views, made once, of what each position reads and writes: layer l's window of columns j − taps + 1 … j
-    # (B, taps · C, contiguous within a row) and its output column j (B, C).
-    windows = [[h[layer, :, left + j - w.shape[0] // C + 1 : left + j + 1].reshape(B, -1) for j in range(W)]
-               for layer, w in enumerate(weights.h_weight)]  # fmt: skip
-    columns = [[h[layer, :, left + j] for j in range(W)] for layer in range(L + 1)]
-    layers = list(zip(weights.h_weight, weights.out_weight, weights.out_bias, weights.residual, strict=True))
-    row_terms = [torch.empty(0)] * L
-    for i in range(H):
+    return _Generation(model, context, temperature, weights, uniforms.to(weights.device), table).run()
+
+
+class _Generation:
+    """One block of `generate_batched`: its buffers, made once, and the grid generated row by row (the vertical
+    stacks of the whole row at once), position by position (the horizontal stacks, the head and the code)."""
+
+    def __init__(self, model: ConditionalPixelCNN, context: torch.Tensor, temperature: float,
+                 weights: BatchedWeights, uniforms: torch.Tensor, table: torch.Tensor | None):  # fmt: skip
+        B, _, H, W = context.shape
+        device, L, C = weights.device, len(weights.v_weight), weights.embed.shape[1]
+        self.shape, self.w, self.temperature, self.uniforms = (B, H, W, L, C), weights, temperature, uniforms
+        home = next(model.parameters()).device  # the conditioning map comes from the model where it lives
+        # Channels-last (H, B · W, c): each row's slice is one matrix for every layer's conditioning at once.
+        self.condition = model.condition(context.to(home)).to(device).permute(2, 0, 3, 1).reshape(H, B * W, -1)
+        self.top = max(weights.v_half)  # every vertical window reaches `top` rows up and columns aside at most
+        # Inputs of each layer's vertical stack, channels-last with `top` zero rows above and zero columns either
+        # side (layer 0: the embedded codes).
+        self.v_in = torch.zeros(L, B, self.top + H, self.top + W + self.top, C, device=device)
+        # The current row's horizontal features, channels-last with `left` zero columns: h[0] is the embedded codes.
+        self.left = max(w.shape[0] // C for w in weights.h_weight) - 1
+        self.h = torch.zeros(L + 1, B, self.left + W, C, device=device)
+        self.codes = torch.zeros(B, H, W, dtype=torch.long, device=device)
+        K = weights.embed.shape[0]
+        self.logits = torch.empty(B, K, device=device)
+        self._draw_buffers(B, K, device)
+        self.expected = None
+        if table is not None:
+            self.probs = torch.empty(B, K, device=device)
+            self.table = table.to(device=device, dtype=torch.float32)
+            self.expected = torch.empty(B, H, W, self.table.shape[1], device=device)
+        # Views, made once, of what each position reads and writes: layer l's window of columns j − taps + 1 … j
+        # (B, taps · C, contiguous within a row) and its output column j (B, C).
+        h, left = self.h, self.left
+        self.windows = [[h[layer, :, left + j - w.shape[0] // C + 1 : left + j + 1].reshape(B, -1) for j in range(W)]
+                        for layer, w in enumerate(weights.h_weight)]  # fmt: skip
+        self.columns = [[h[layer, :, left + j] for j in range(W)] for layer in range(L + 1)]
+        self.layers = list(zip(weights.h_weight, weights.out_weight, weights.out_bias, weights.residual, strict=True))
+        self.row_terms = [torch.empty(0)] * L
+
+    def _draw_buffers(self, B: int, K: int, device: torch.device) -> None:
+        """Buffers every position reuses (a fresh B × K array per operation costs the allocator more than the
+        arithmetic): the draw's float64 weights and sums, or the argmax's intermediates."""
+        self.on_cpu = device.type == "cpu"
+        if self.temperature > 0.0 and self.on_cpu:  # the kernel's draw, row by row (`draw_rows`), per position
+            self.drawn = torch.empty(B, dtype=torch.long)
+            # (H, W, B): each position's numbers contiguous
+            self.numbers = self.uniforms.permute(1, 2, 0).contiguous().numpy()
+            self.scratch = (np.empty((4, K)), np.empty(K), self.logits.numpy(), self.drawn.numpy())
+        elif self.temperature > 0.0:
+            self.work, self.cdf = (torch.empty(B, K, dtype=torch.float64, device=device) for _ in range(2))
+        else:
+            self.work = torch.empty(B, K, device=device)
+
+    def run(self) -> torch.Tensor | tuple[torch.Tensor, ...]:
+        _, H, W, _, _ = self.shape
+        top, left = self.top, self.left
+        for i in range(H):
+            self._vertical_row(i)
+            self.h[0].zero_()
+            for j in range(W):
+                self._position(i, j)
+                code = self._choose(i, j)
+                self.codes[:, i, j] = code
+                self.columns[0][j].copy_(self.w.embed[code])
+            self.v_in[0, :, top + i, top : top + W] = self.h[0, :, left:]
+        codes = self.codes.cpu()
+        return codes if self.expected is None else (codes, self.expected.cpu())
+
+    def _vertical_row(self, i: int) -> None:
+        """Row i of every layer's vertical stack, and its terms of the horizontal stacks' pre-activations."""
+        B, _, W, L, C = self.shape
+        weights, top = self.w, self.top
         # Row i's conditioning of every layer's vertical and horizontal gates (B, W, L, 2, 2C), computed per row so
         # that it stays in the caches; the horizontal one also carries both biases of the horizontal pre-activation.
-        conditions = torch.addmm(weights.cond_bias, condition[i], weights.cond_weight).reshape(B, W, L, 2, 2 * C)
+        conditions = torch.addmm(weights.cond_bias, self.condition[i], weights.cond_weight).reshape(B, W, L, 2, 2 * C)
         for layer in range(L):
             half = weights.v_half[layer]
-            rows = v_in[layer, :, top + i - half : top + i + 1, top - half : top + W + half]  # (B, half+1, W+2half, C)
+            rows = self.v_in[
+                layer, :, top + i - half : top + i + 1, top - half : top + W + half
+            ]  # (B, half+1, W+2half, C)
             window = rows.unfold(2, 2 * half + 1, 1).permute(0, 2, 1, 4, 3).reshape(B * W, -1)
             v_pre = torch.addmm(weights.v_bias[layer], window, weights.v_weight[layer])  # (B·W, 2C)
             if layer + 1 < L:
                 gate = v_pre.reshape(B, W, -1) + conditions[:, :, layer, 0]
-                v_in[layer + 1, :, top + i, top : top + W] = torch.tanh(gate[..., :C]) * torch.sigmoid(gate[..., C:])
-            row_terms[layer] = torch.addmm(conditions[:, :, layer, 1].reshape(B * W, -1), v_pre,
-                                           weights.v2h_weight[layer]).reshape(B, W, -1)  # fmt: skip
-        h[0].zero_()
-        for j in range(W):
-            for layer, (h_weight, out_weight, out_bias, residual) in enumerate(layers):
-                pre = torch.addmm(row_terms[layer][:, j], windows[layer][j], h_weight)
-                gated = torch.tanh(pre[:, :C]) * torch.sigmoid(pre[:, C:])
-                out = torch.addmm(out_bias, gated, out_weight)
-                if residual:
-                    out += columns[layer][j]
-                columns[layer + 1][j].copy_(out)
-            hidden = torch.addmm(weights.b1, torch.relu(columns[L][j]), weights.w1).relu_()
-            torch.addmm(weights.b2, hidden, weights.w2, out=logits)  # (B, K)
-            if expected is not None:
-                expected[:, i, j] = torch.ops.aten._softmax.out(logits, -1, False, out=probs) @ table
-            if temperature > 0.0 and on_cpu:
-                cdf_rows, scale, logits_np, drawn_np = scratch
-                draw_rows(logits_np, float(temperature), numbers[i, j], cdf_rows, scale, drawn_np)
-                code = drawn
-            elif temperature > 0.0:
-                code = _pick(logits, temperature, uniforms[:, i, j], work, cdf)
-            else:
-                code = _first_argmax(logits, weights.descending, work)
-            codes[:, i, j] = code
-            columns[0][j].copy_(weights.embed[code])
-        v_in[0, :, top + i, top : top + W] = h[0, :, left:]
-    codes = codes.cpu()
-    return codes if expected is None else (codes, expected.cpu())
+                self.v_in[layer + 1, :, top + i, top : top + W] = torch.tanh(gate[..., :C]) * torch.sigmoid(
+                    gate[..., C:]
+                )
+            self.row_terms[layer] = torch.addmm(conditions[:, :, layer, 1].reshape(B * W, -1), v_pre,
+                                                weights.v2h_weight[layer]).reshape(B, W, -1)  # fmt: skip
+
+    def _position(self, i: int, j: int) -> None:
+        """Position (i, j): every layer's horizontal stack, the head's logits and (with a table) the expected row."""
+        C, L, weights = self.shape[4], self.shape[3], self.w
+        for layer, (h_weight, out_weight, out_bias, residual) in enumerate(self.layers):
+            pre = torch.addmm(self.row_terms[layer][:, j], self.windows[layer][j], h_weight)
+            gated = torch.tanh(pre[:, :C]) * torch.sigmoid(pre[:, C:])
+            out = torch.addmm(out_bias, gated, out_weight)
+            if residual:
+                out += self.columns[layer][j]
+            self.columns[layer + 1][j].copy_(out)
+        hidden = torch.addmm(weights.b1, torch.relu(self.columns[L][j]), weights.w1).relu_()
+        torch.addmm(weights.b2, hidden, weights.w2, out=self.logits)  # (B, K)
+        if self.expected is not None:
+            self.expected[:, i, j] = torch.ops.aten._softmax.out(self.logits, -1, False, out=self.probs) @ self.table
+
+    def _choose(self, i: int, j: int) -> torch.Tensor:
+        """The codes (B,) at (i, j): drawn as the kernel draws them (on the CPU), by the batched draw, or the argmax."""
+        if self.temperature > 0.0 and self.on_cpu:
+            cdf_rows, scale, logits_np, drawn_np = self.scratch
+            draw_rows(logits_np, float(self.temperature), self.numbers[i, j], cdf_rows, scale, drawn_np)
+            return self.drawn
+        if self.temperature > 0.0:
+            return _pick(self.logits, self.temperature, self.uniforms[:, i, j], self.work, self.cdf)
+        return _first_argmax(self.logits, self.w.descending, self.work)

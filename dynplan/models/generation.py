@@ -89,7 +89,7 @@ def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature
 
     def rows(start: int, stop: int) -> None:
         _generate_grid(cond_v[start:stop], cond_h[start:stop], float(temperature), numbers[start:stop], lookup,
-                       expected[start:stop], codes[start:stop], *weights)  # fmt: skip
+                       expected[start:stop], codes[start:stop], weights)  # fmt: skip
 
     # The kernel releases the GIL: torch's thread count of row blocks generate at once, each on its own grids.
     blocks = min(B, torch.get_num_threads())
@@ -353,81 +353,103 @@ def draw_rows(logits, temperature, uniforms, cdf, scale, codes):
         codes[b] = _draw(logits[b], temperature, uniforms[b], cdf[0], scale)
 
 
+@numba.njit(cache=True)
+def _work(L, H, W, C2, hidden, K):
+    """The generation's scratch arrays: (v_in (L, H, W, C): each layer's vertical input, h (L + 1, W, C): the current
+    row's horizontal features, to_h (L, W, 2C), row (W, 2C), acc (2C,), out (C,), gated (C,), hidden, logits (K,),
+    scratch (2C,), bits (int32), cdf (K,) and scale (K,) float64, probs (K,))."""
+    C = C2 // 2
+    return (np.zeros((L, H, W, C), np.float32), np.zeros((L + 1, W, C), np.float32), np.zeros((L, W, C2), np.float32),
+            np.zeros((W, C2), np.float32), np.zeros(C2, np.float32), np.zeros(C, np.float32), np.zeros(C, np.float32),
+            np.zeros(hidden, np.float32), np.zeros(K, np.float32), np.zeros(C2, np.float32),
+            np.zeros(max(K, C2), np.int32), np.zeros(K, np.float64), np.zeros(K, np.float64),
+            np.zeros(K, np.float32))  # fmt: skip
+
+
+@numba.njit(cache=True, inline="always")
+def _vertical_row(i, cond, x, weights, work):
+    """Row i of every layer's vertical stack, from the rows above it: the gated features into the next layer's input
+    (`v_in`) and the link into the horizontal stack (`to_h`). cond (L, H, W, 2C): this grid's vertical
+    conditioning; x (H, W, C): the embedded codes generated so far (layer 0's input). Tap by tap over the whole
+    row: each weight matrix is read once per row, not once per position."""
+    v_in, to_h, row, acc, scratch, bits = work[0], work[2], work[3], work[4], work[9], work[10]
+    L, W = v_in.shape[0], v_in.shape[2]
+    for layer in range(L):
+        source = x if layer == 0 else v_in[layer]
+        for j in range(W):
+            row[j] = weights.v_bias[layer]
+        for t in range(weights.v_taps[layer]):
+            r, dc = i + weights.v_offsets[layer, t, 0], weights.v_offsets[layer, t, 1]
+            if r >= 0:
+                for j in range(max(0, -dc), min(W, W - dc)):
+                    _add_product(row[j], weights.v_weight[layer, t], source[r, j + dc])
+        for j in range(W):
+            if layer + 1 < L:
+                for o in range(acc.shape[0]):
+                    acc[o] = row[j, o] + cond[layer, i, j, o]
+                _gate(acc, v_in[layer + 1, i, j], scratch, bits)
+            to_h[layer, j] = weights.v2h_bias[layer]
+            _add_product(to_h[layer, j], weights.v2h_weight[layer], row[j])
+
+
+@numba.njit(cache=True, inline="always")
+def _horizontal_position(i, j, cond, x, weights, work):
+    """Position (i, j) of every layer's horizontal stack, from the positions to its left, into `h[layer + 1, j]`.
+    cond (L, H, W, 2C): this grid's horizontal conditioning."""
+    h, to_h, acc, out, gated, scratch, bits = work[1], work[2], work[4], work[5], work[6], work[9], work[10]
+    L, C = to_h.shape[0], out.shape[0]
+    for layer in range(L):
+        source = x[i] if layer == 0 else h[layer]
+        for o in range(acc.shape[0]):
+            acc[o] = weights.h_bias[layer, o] + (to_h[layer, j, o] + cond[layer, i, j, o])
+        for t in range(weights.h_taps[layer]):
+            c = j + weights.h_offsets[layer, t]
+            if c >= 0:
+                _add_product(acc, weights.h_weight[layer, t], source[c])
+        _gate(acc, gated, scratch, bits)
+        out[:] = weights.out_bias[layer]
+        _add_product(out, weights.out_weight[layer], gated)
+        for c in range(C):
+            h[layer + 1, j, c] = out[c] + (source[j, c] if weights.residual[layer] else 0.0)
+
+
+@numba.njit(cache=True, inline="always")
+def _head(j, weights, work):
+    """The head's logits (K,) at column j of the current row, from the last layer's horizontal features."""
+    h, gated, hidden, logits = work[1], work[6], work[7], work[8]
+    L = h.shape[0] - 1
+    for c in range(gated.shape[0]):
+        gated[c] = max(h[L, j, c], 0.0)
+    hidden[:] = weights.b1
+    _add_scaled(hidden, weights.w1, gated)
+    for o in range(hidden.shape[0]):
+        hidden[o] = max(hidden[o], 0.0)
+    logits[:] = weights.b2
+    _add_scaled(logits, weights.w2, hidden)
+
+
 @numba.njit(cache=True, nogil=True)  # episodes on a thread pool generate in parallel
-def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, codes, v_offsets, v_weight, v_taps, v_bias,
-                   v2h_weight, v2h_bias, h_offsets, h_weight, h_taps, h_bias, out_weight, out_bias, residual, w1, b1,
-                   w2, b2, embed):  # fmt: skip
+def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, codes, weights):
     """Generation of whole code grids (compiled): vertical stacks row by row, horizontal stacks and the head
     position by position; each code the argmax (temperature 0) or drawn by inverse transform of the softmax at
     `temperature` with that position's number from `uniforms` (B, H, W) — as `pixelcnn.pick` does.
 
     cond_v, cond_h: (B, L, H, W, 2C) each layer's conditioning for its vertical and horizontal gates
     table (P, K): with rows, `expected` (B, H, W, P) receives Σ_q softmax(logits)_q · table[:, q] at each position
-    v_offsets (L, T, 2) / v_weight (L, T, C, 2C) / v_taps (L,): each layer's vertical taps, (row, col) offsets
-    h_offsets (L, T) / h_weight (L, T, C, 2C) / h_taps (L,): horizontal taps, column offsets
-    *_weight of 1 × 1 convolutions and the head: (C_in, C_out); embed (K, C)
-    codes (B, H, W) int64 receives the codes
+    weights: the prior's `KernelWeights`; codes (B, H, W) int64 receives the codes
     """
     B, L, H, W, C2 = cond_v.shape
-    C = C2 // 2
-    x = np.zeros((H, W, C), np.float32)  # embedded codes generated so far: input of layer 0's stacks
-    v_in = np.zeros((L, H, W, C), np.float32)  # input of each layer's vertical stack (layer 0 reads x)
-    h = np.zeros((L + 1, W, C), np.float32)  # the current row's horizontal features; h[0] unused (x)
-    to_h = np.zeros((L, W, C2), np.float32)
-    acc = np.zeros(C2, np.float32)
-    out = np.zeros(C, np.float32)
-    gated = np.zeros(C, np.float32)
-    hidden = np.zeros(w1.shape[1], np.float32)
-    logits = np.zeros(w2.shape[1], np.float32)
-    cdf = np.zeros(w2.shape[1], np.float64)
-    scale64 = np.zeros(w2.shape[1], np.float64)
-    probs = np.zeros(w2.shape[1], np.float32)
-    bits = np.zeros(max(w2.shape[1], C2), np.int32)
-    scratch = np.zeros(C2, np.float32)
-    row = np.zeros((W, C2), np.float32)  # a layer's vertical pre-activations along row i
+    x = np.zeros((H, W, C2 // 2), np.float32)  # embedded codes generated so far: input of layer 0's stacks
+    work = _work(L, H, W, C2, weights.w1.shape[1], weights.w2.shape[1])
+    v_in, logits, bits, cdf, scale64, probs = work[0], work[8], work[10], work[11], work[12], work[13]
     for b in range(B):
         x[:] = 0.0
         v_in[:] = 0.0
         for i in range(H):
-            for layer in range(L):
-                source = x if layer == 0 else v_in[layer]
-                for j in range(W):
-                    row[j] = v_bias[layer]
-                # Tap by tap over the whole row: each weight matrix is read once per row, not once per position.
-                for t in range(v_taps[layer]):
-                    r, dc = i + v_offsets[layer, t, 0], v_offsets[layer, t, 1]
-                    if r >= 0:
-                        for j in range(max(0, -dc), min(W, W - dc)):
-                            _add_product(row[j], v_weight[layer, t], source[r, j + dc])
-                for j in range(W):
-                    if layer + 1 < L:
-                        for o in range(C2):
-                            acc[o] = row[j, o] + cond_v[b, layer, i, j, o]
-                        _gate(acc, v_in[layer + 1, i, j], scratch, bits)
-                    to_h[layer, j] = v2h_bias[layer]
-                    _add_product(to_h[layer, j], v2h_weight[layer], row[j])
+            _vertical_row(i, cond_v[b], x, weights, work)
             for j in range(W):
-                for layer in range(L):
-                    source = x[i] if layer == 0 else h[layer]
-                    for o in range(C2):
-                        acc[o] = h_bias[layer, o] + (to_h[layer, j, o] + cond_h[b, layer, i, j, o])
-                    for t in range(h_taps[layer]):
-                        c = j + h_offsets[layer, t]
-                        if c >= 0:
-                            _add_product(acc, h_weight[layer, t], source[c])
-                    _gate(acc, gated, scratch, bits)
-                    out[:] = out_bias[layer]
-                    _add_product(out, out_weight[layer], gated)
-                    for c in range(C):
-                        h[layer + 1, j, c] = out[c] + (source[j, c] if residual[layer] else 0.0)
-                for c in range(C):
-                    gated[c] = max(h[L, j, c], 0.0)
-                hidden[:] = b1
-                _add_scaled(hidden, w1, gated)
-                for o in range(hidden.shape[0]):
-                    hidden[o] = max(hidden[o], 0.0)
-                logits[:] = b2
-                _add_scaled(logits, w2, hidden)
+                _horizontal_position(i, j, cond_h[b], x, weights, work)
+                _head(j, weights, work)
                 if table.shape[0] > 0 or temperature == 0.0:
                     code = np.argmax(logits)
                     if table.shape[0] > 0:
@@ -435,4 +457,4 @@ def _generate_grid(cond_v, cond_h, temperature, uniforms, table, expected, codes
                 if temperature > 0.0:
                     code = _draw(logits, temperature, uniforms[b, i, j], cdf, scale64)
                 codes[b, i, j] = code
-                x[i, j] = embed[code]
+                x[i, j] = weights.embed[code]

@@ -57,6 +57,7 @@ def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int,
                  technique: str = "mid") -> dict[str, str]:  # fmt: skip
     """Prediction error against horizon (every configuration), a Figure-1 image and a replay GIF (the first),
     into `out`; skipped when `out/figures.json` says they were drawn from the same checkpoints."""
+    from dynplan.evaluation.agent import AgentSpec
     from dynplan.evaluation.prediction import errors_by_horizon, figure1, plot_errors
     from dynplan.evaluation.replay import replay
     from dynplan.models.world_model import load_world_model
@@ -82,15 +83,8 @@ def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int,
     with atomic_path(out / names["figure1"], keep_suffix=True) as tmp:
         figure1(load_world_model(folder, model=first, samples=samples, futures=futures), tmp, seed=seed)
     log = log_path(eval_logs, seed)
-    replay(
-        log,
-        planner=technique,
-        agent_speed=1.0,
-        rollout_steps=rollout_steps,
-        gif=out / names["gif"],
-        model=first,
-        model_dir=str(folder.parent),
-    )  # write_gif is atomic itself
+    agent = AgentSpec(technique=technique, model=first, model_dir=str(folder.parent), rollout_steps=rollout_steps)
+    replay(log, agent, agent_speed=1.0, gif=out / names["gif"])  # write_gif is atomic itself
     write_bytes_atomic(manifest, json.dumps({"identity": identity, "curves": curves}, indent=1).encode())
     return names
 

@@ -76,6 +76,64 @@ def _predict(models: Sequence[ForwardModel], observed: Sequence[np.ndarray],
     return out, ms  # type: ignore[return-value]
 
 
+@dataclass
+class _Episode:
+    """One episode of a lockstep batch: its environment, planner, model and horizon, and its track so far."""
+
+    index: int
+    world: World
+    planner: MCTSPlanner | RandomPlanner
+    model: ForwardModel | None
+    horizon: int
+    env: RoadEnv = field(init=False)
+    times: list[float] = field(default_factory=list)
+    steps: list[tuple] = field(default_factory=list)  # (t, position, action, reward, outcome) after each step
+
+    def start(self, agent_speed: float) -> None:
+        config = RoadConfig.from_dict(self.world.config.model_dump(), agent_speed=agent_speed)
+        self.env = RoadEnv(config=config)
+        self.env.reset(options={"world": self.world})
+        self.planner.reset()
+        self.first = (self.env.t, self.env.position.copy())
+
+    def asks(self) -> int:
+        """The frames its prediction may hold: the horizon, never past frame T − 1, where the episode times out."""
+        return min(self.horizon, self.env.config.max_steps - 1 - self.env.t)
+
+    def step(self, prediction: Prediction | None, share_ms: float, on_decision: BatchDecisionHook | None) -> str:
+        """Decide against `prediction` (its time: `share_ms` of the batch's prediction plus the search) and step;
+        returns the outcome ("running" until the episode ends)."""
+        env = self.env
+        start = time.perf_counter()
+        decision = self.planner.act(env.position, env.t, prediction)
+        self.times.append(share_ms + (time.perf_counter() - start) * 1e3)
+        if on_decision is not None:
+            on_decision(self.index, env.t, env.position.copy(), prediction, decision)
+        _, reward, _, _, info = env.step(decision.action)
+        self.steps.append((env.t, env.position.copy(), decision.action, reward, info["outcome"]))
+        return info["outcome"]
+
+    def result(self) -> EpisodeResult:
+        t, positions, actions, rewards, outcomes = zip(*self.steps, strict=True)
+        track = AgentTrack(np.array([self.first[0], *t]), np.array([self.first[1], *positions]), np.array(actions),
+                           np.array(rewards), tuple(outcomes))  # fmt: skip
+        return EpisodeResult(self.world.seed, outcomes[-1], len(actions), float(rewards[-1]), self.times, track)
+
+
+def _check(worlds: Sequence[World], planners: Sequence, models: Sequence, speeds: list, horizons: list) -> None:
+    """A ValueError unless there is one planner, model, speed and horizon per world; a TypeError naming a model
+    that is not a ForwardModel."""
+    n = len(worlds)
+    if not n == len(planners) == len(models):
+        raise ValueError(f"run_episodes: {n} worlds, {len(planners)} planners, {len(models)} models")
+    if not len(speeds) == len(horizons) == n:
+        raise ValueError(f"run_episodes: {n} worlds, {len(speeds)} agent speeds, {len(horizons)} rollout steps")
+    wrong = [type(m).__name__ for m in models if m is not None and not isinstance(m, ForwardModel)]
+    if wrong:
+        raise TypeError(f"run_episodes: {wrong[0]} is not a ForwardModel (name, predict, predict_batch, batch_key, "
+                        "cost): subclass dynplan.planning.forward.ForwardModel")  # fmt: skip
+
+
 def run_episodes(
     worlds: Sequence[World],
     planners: Sequence[MCTSPlanner | RandomPlanner],
@@ -94,55 +152,27 @@ def run_episodes(
     an episode's result does not depend on which others share its batch. An episode's decision time is its share of
     the batched prediction (by what it asked for) plus its own search."""
     n = len(worlds)
-    if not n == len(planners) == len(models):
-        raise ValueError(f"run_episodes: {n} worlds, {len(planners)} planners, {len(models)} models")
-    wrong = [type(m).__name__ for m in models if m is not None and not isinstance(m, ForwardModel)]
-    if wrong:
-        raise TypeError(f"run_episodes: {wrong[0]} is not a ForwardModel (name, predict, predict_batch, batch_key, "
-                        "cost): subclass dynplan.planning.forward.ForwardModel")  # fmt: skip
     speeds = [agent_speed] * n if np.isscalar(agent_speed) else list(agent_speed)
-    horizons_of = [rollout_steps] * n if np.isscalar(rollout_steps) else list(rollout_steps)
-    if not len(speeds) == len(horizons_of) == n:
-        raise ValueError(f"run_episodes: {n} worlds, {len(speeds)} agent speeds, {len(horizons_of)} rollout steps")
-    envs, configs = [], []
-    for world, planner, speed in zip(worlds, planners, speeds, strict=True):
-        config = RoadConfig.from_dict(world.config.model_dump(), agent_speed=speed)
-        env = RoadEnv(config=config)
-        env.reset(options={"world": world})
-        planner.reset()
-        envs.append(env)
-        configs.append(config)
-    times: list[list[float]] = [[] for _ in range(n)]
-    tracks = [([env.t], [env.position.copy()], [], [], []) for env in envs]
+    horizons = [rollout_steps] * n if np.isscalar(rollout_steps) else list(rollout_steps)
+    _check(worlds, planners, models, speeds, horizons)
+    episodes = [_Episode(i, *args) for i, args in enumerate(zip(worlds, planners, models, horizons, strict=True))]
+    for episode, speed in zip(episodes, speeds, strict=True):
+        episode.start(speed)
     results: list[EpisodeResult | None] = [None] * n
-    live = list(range(n))
+    live = episodes
     while live:
-        horizons = {i: min(horizons_of[i], configs[i].max_steps - 1 - envs[i].t) for i in live}
-        asking = [i for i in live if models[i] is not None]
-        predicted, spent = _predict([models[i] for i in asking], [worlds[i].frames[: envs[i].t + 1] for i in asking],
-                                    [horizons[i] for i in asking])  # fmt: skip
-        predictions, shares = dict(zip(asking, predicted, strict=True)), dict(zip(asking, spent, strict=True))
-        finished = []
-        for i in live:
-            env, (t_list, positions, actions, rewards, outcomes) = envs[i], tracks[i]
-            start = time.perf_counter()
-            decision = planners[i].act(env.position, env.t, predictions.get(i))
-            times[i].append(shares.get(i, 0.0) + (time.perf_counter() - start) * 1e3)
-            if on_decision is not None:
-                on_decision(i, env.t, env.position.copy(), predictions.get(i), decision)
-            _, reward, _, _, info = env.step(decision.action)
-            t_list.append(env.t)
-            positions.append(env.position.copy())
-            actions.append(decision.action)
-            rewards.append(reward)
-            outcomes.append(info["outcome"])
-            if info["outcome"] != "running":
-                track = AgentTrack(np.array(t_list), np.array(positions), np.array(actions), np.array(rewards),
-                                   tuple(outcomes))  # fmt: skip
-                results[i] = EpisodeResult(worlds[i].seed, info["outcome"], len(actions), float(reward), times[i],
-                                           track)  # fmt: skip
-                finished.append(i)
-                if on_finish is not None:
-                    on_finish(i, results[i])
-        live = [i for i in live if i not in finished]
+        asking = [e for e in live if e.model is not None]
+        predicted, spent = _predict([e.model for e in asking], [e.world.frames[: e.env.t + 1] for e in asking],
+                                    [e.asks() for e in asking])  # fmt: skip
+        predictions = {e.index: (p, ms) for e, p, ms in zip(asking, predicted, spent, strict=True)}
+        still = []
+        for e in live:
+            prediction, share = predictions.get(e.index, (None, 0.0))
+            if e.step(prediction, share, on_decision) == "running":
+                still.append(e)
+                continue
+            results[e.index] = e.result()
+            if on_finish is not None:
+                on_finish(e.index, results[e.index])
+        live = still
     return results  # type: ignore[return-value]

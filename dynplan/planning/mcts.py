@@ -111,16 +111,17 @@ def _terminal_value(outcome, t_abs, max_steps):
 
 
 @numba.njit(cache=True, nogil=True)  # episodes on a thread pool search in parallel
-def _playouts(child, visits, value, prior, position, depth, n_nodes, frames, horizon, goal_y, goal_x, t0,
-              max_steps, deltas, angles, weights, c_puct, random_actions):  # fmt: skip
-    """Run len(random_actions) playouts from node 0; returns the new node count."""
+def _playouts(tree, n_nodes, frames, horizon, goal, t0, max_steps, search):
+    """Run len(random_actions) playouts from node 0; returns the new node count. `tree`: the arrays of `Tree.arrays`;
+    `goal`: (y, x); `search`: (deltas, angles, prior weights, c_puct, random_actions (playouts, horizon))."""
+    child, visits, value, prior, position, depth = tree
+    goal_y, goal_x = goal
+    deltas, angles, weights, c_puct, random_actions = search
     path = np.empty(horizon + 1, np.int64)
     node_prior = np.empty(deltas.shape[0])
     for playout in range(random_actions.shape[0]):
-        node = 0
-        length = 0
-        path[length] = node
-        length += 1
+        node, length = 0, 1
+        path[0] = node
         while True:
             d = depth[node]
             if d > 0:
@@ -172,9 +173,11 @@ def _playouts(child, visits, value, prior, position, depth, n_nodes, frames, hor
 
 
 @numba.njit(cache=True)
-def _copy_subtree(child, visits, value, prior, position, depth, root, out_child, out_visits, out_value, out_prior,
-                  out_position, out_depth):  # fmt: skip
-    """Copy the subtree under `root` into the out_ arrays (root becomes node 0, depths shift by one)."""
+def _copy_subtree(tree, root, out):
+    """Copy the subtree under `root` of `tree` into the arrays `out` (both as `Tree.arrays`: root becomes node 0,
+    depths shift by one)."""
+    child, visits, value, prior, position, depth = tree
+    out_child, out_visits, out_value, out_prior, out_position, out_depth = out
     queue = np.empty(child.shape[0], np.int64)
     new_index = np.full(child.shape[0], -1, np.int64)
     queue[0] = root
@@ -262,7 +265,7 @@ class MCTSPlanner:
         old, new = self.tree, self.spare
         if self._next_root is not None and np.allclose(old.position[self._next_root], position):
             new.clear()
-            new.size = _copy_subtree(*old.arrays(), self._next_root, *new.arrays())
+            new.size = _copy_subtree(old.arrays(), self._next_root, new.arrays())
             self.tree, self.spare = new, old
         else:
             old.reset(position)
@@ -281,8 +284,8 @@ class MCTSPlanner:
         self._root(np.asarray(position, np.float64))
         tree = self.tree
         random_actions = self.rng.integers(0, N_ACTIONS, size=(cfg.playouts, horizon))
-        tree.size = _playouts(*tree.arrays(), tree.size, frames, horizon, goal[0], goal[1], t, self.max_steps,
-                              self.deltas, self.angles, self.weights, cfg.c_puct, random_actions)  # fmt: skip
+        search = (self.deltas, self.angles, self.weights, cfg.c_puct, random_actions)
+        tree.size = _playouts(tree.arrays(), tree.size, frames, horizon, (goal[0], goal[1]), t, self.max_steps, search)
         children = tree.child[0]
         visits = tree.visits[children].astype(np.float64)
         q = np.where(visits > 0, tree.value[children] / np.maximum(visits, 1), 0.0)

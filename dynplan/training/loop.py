@@ -112,22 +112,50 @@ def finished(out_dir: Path, stage_kind: str, config: dict, epochs: int) -> Path 
         raise
 
 
+def _resume(latest: Path, stage: Stage, budget: TrainBudget) -> tuple[int, float, list[dict]]:
+    """(epochs done, seconds spent, history) of the run: from its latest checkpoint (the model, optimiser and
+    random state restored), else from nothing, started from `budget.init_from`'s weights if given."""
+    if latest.exists():
+        state = checkpoint.load(latest, stage.kind, stage.config)
+        stage.model.load_state_dict(state["model"])
+        stage.optimiser.load_state_dict(state["optimiser"])
+        if "torch_rng" in state:
+            torch.set_rng_state(state["torch_rng"])  # e.g. a codebook initialisation draws from it: resume bit for bit
+        return state["epoch"], state["elapsed_s"], state["history"]
+    if budget.init_from:
+        warm_start(stage.model, budget.init_from, stage.kind)
+    return 0, 0.0, []
+
+
+def _run_epoch(stage: Stage, budget: TrainBudget, epoch: int, elapsed: float) -> dict:
+    """Epoch `epoch` + 1's steps, from its own random stream, and its row of the history (means of the steps'
+    figures, the stage's epoch-end figures, throughput, time spent in all, the evaluation)."""
+    generator = torch.Generator().manual_seed(budget.seed * 1_000_003 + epoch)
+    totals: dict[str, float] = {}
+    t0 = time.perf_counter()
+    for _ in range(budget.steps_per_epoch):
+        for name, value in stage.step(generator).items():
+            totals[name] = totals.get(name, 0.0) + value
+    epoch_s = time.perf_counter() - t0
+    items = budget.steps_per_epoch * stage.batch_size
+    return {
+        "epoch": epoch + 1,
+        f"{stage.unit}_seen": (epoch + 1) * items,
+        **{k: v / budget.steps_per_epoch for k, v in totals.items()},
+        **stage.epoch_end(),
+        f"train_{stage.unit}_per_s": items / epoch_s,
+        "elapsed_s": elapsed + epoch_s,
+        **stage.evaluate(),
+    }
+
+
 def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None,
           tensorboard: str | os.PathLike | None = None) -> Path:  # fmt: skip
     """Run `stage` in `out_dir` up to `budget.epochs`, resuming from `checkpoint.pt`; return the final checkpoint,
     or the latest if `budget.max_minutes` stopped it first. `tensorboard`: a folder that also receives every
     epoch's figures and the stage's images (`dynplan.training.tensorboard`)."""
     latest, final = out_dir / "checkpoint.pt", out_dir / f"{stage.kind}.pt"
-    epoch, elapsed, history = 0, 0.0, []
-    if latest.exists():
-        state = checkpoint.load(latest, stage.kind, stage.config)
-        stage.model.load_state_dict(state["model"])
-        stage.optimiser.load_state_dict(state["optimiser"])
-        epoch, elapsed, history = state["epoch"], state["elapsed_s"], state["history"]
-        if "torch_rng" in state:
-            torch.set_rng_state(state["torch_rng"])  # e.g. a codebook initialisation draws from it: resume bit for bit
-    elif budget.init_from:
-        warm_start(stage.model, budget.init_from, stage.kind)
+    epoch, elapsed, history = _resume(latest, stage, budget)
     write_bytes_atomic(out_dir / "config.json", json.dumps(stage.config, indent=1).encode())
     board = None
     if tensorboard is not None:
@@ -139,25 +167,8 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
     while epoch < budget.epochs:
         if budget.max_minutes and (time.perf_counter() - started) / 60 >= budget.max_minutes:
             break
-        generator = torch.Generator().manual_seed(budget.seed * 1_000_003 + epoch)
-        totals: dict[str, float] = {}
-        t0 = time.perf_counter()
-        for _ in range(budget.steps_per_epoch):
-            for name, value in stage.step(generator).items():
-                totals[name] = totals.get(name, 0.0) + value
-        epoch_s = time.perf_counter() - t0
-        elapsed += epoch_s
-        epoch += 1
-        items = budget.steps_per_epoch * stage.batch_size
-        row = {
-            "epoch": epoch,
-            f"{stage.unit}_seen": epoch * items,
-            **{k: v / budget.steps_per_epoch for k, v in totals.items()},
-            **stage.epoch_end(),
-            f"train_{stage.unit}_per_s": items / epoch_s,
-            "elapsed_s": elapsed,
-            **stage.evaluate(),
-        }
+        row = _run_epoch(stage, budget, epoch, elapsed)
+        epoch, elapsed = row["epoch"], row["elapsed_s"]
         history.append(row)
         checkpoint.save(latest, {"kind": stage.kind, "config": stage.config, "model": _cpu(stage.model.state_dict()),
                                  "optimiser": _cpu(stage.optimiser.state_dict()), "epoch": epoch, "elapsed_s": elapsed,

@@ -23,6 +23,7 @@ from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.vqvae import VQVAE
 from dynplan.render import comparison_columns
 from dynplan.training import loop
 from dynplan.training.loop import TrainBudget
@@ -81,6 +82,17 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         rate = optimiser.param_groups[0]["lr"]
         return {"loss": out.loss.item(), "accuracy": out.accuracy.item(), "learning_rate": rate}
 
+    evaluate, images = _validation_scores(model, tokenizer, (val_context, val_target, val_frames), device)
+    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
+                       images=images, unit="windows")  # fmt: skip
+    return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
+
+
+def _validation_scores(model: ConditionalPixelCNN, tokenizer: VQVAE, validation: tuple, device: torch.device
+                       ) -> tuple[Callable[[], dict[str, float]], Callable[[], dict[str, np.ndarray]]]:  # fmt: skip
+    """The epoch's evaluation on the `validation` windows (context, target, true frames) — loss, accuracy, and the
+    greedy generation's grids and decoded frames — and the images of its last predicted next frames."""
+    val_context, val_target, val_frames = validation
     generated = np.linspace(0, len(val_target) - 1, min(256, len(val_target))).astype(int)  # spread evenly
     shown: dict[str, np.ndarray] = {}  # the last evaluation's first predicted next frames, and the truth
 
@@ -106,9 +118,7 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
     def images() -> dict[str, np.ndarray]:
         return {"next_frame": comparison_columns(shown["true"], shown["predicted"])}
 
-    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
-                       images=images, unit="windows")  # fmt: skip
-    return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
+    return evaluate, images
 
 
 def learning_rate(config: PixelCNNConfig, steps: int) -> float:
