@@ -3,6 +3,7 @@
 import pytest
 import torch
 
+from dynplan.bench.reference import generate_naive
 from dynplan.config import ConfigError
 from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
 
@@ -49,14 +50,14 @@ def test_conditioning_reaches_every_position(model):
 
 def test_teacher_forced_loss_and_greedy_generation_are_consistent(model):
     context = torch.randint(0, 16, (3, 4, 6, 6))
-    codes = model.generate_naive(context).clone()  # an ordinary tensor outside inference mode
+    codes = generate_naive(model, context).clone()  # an ordinary tensor outside inference mode
     assert codes.shape == (3, 6, 6) and codes.dtype == torch.long
     logits = model.logits(codes, model.condition(context))
     assert torch.equal(logits.argmax(1), codes)  # each greedy choice is the argmax given the ones before it
     out = model(context, codes)
     assert out.accuracy == 1.0 and out.loss > 0
-    sampled = model.generate_naive(context, temperature=1.0, generator=torch.Generator().manual_seed(1))
-    again = model.generate_naive(context, temperature=1.0, generator=torch.Generator().manual_seed(1))
+    sampled = generate_naive(model, context, temperature=1.0, generator=torch.Generator().manual_seed(1))
+    again = generate_naive(model, context, temperature=1.0, generator=torch.Generator().manual_seed(1))
     assert torch.equal(sampled, again)
 
 
@@ -121,7 +122,7 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     assert {"val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact", "windows_seen"} <= set(history[-1])
     assert np.isfinite(history[-1]["val_loss"])
     model = load_pixelcnn_checkpoint(path)
-    assert model.generate_naive(torch.zeros(1, 4, 6, 6, dtype=torch.long)).shape == (1, 6, 6)
+    assert generate_naive(model, torch.zeros(1, 4, 6, 6, dtype=torch.long)).shape == (1, 6, 6)
     wrong_k = SMALL.model_copy(update={"codebook_size": 32})
     with pytest.raises(ValueError, match="holds codes of K=16"):
         train_pixelcnn(store, "codes_tiny", tmp_path / "other", wrong_k, TrainBudget(epochs=1, steps_per_epoch=1))
@@ -155,10 +156,10 @@ def test_fast_generation_equals_the_naive_reference(seed, K, grid, batch):
         p.data.mul_(3.0)
     context = torch.randint(0, K, (batch, 4, grid, grid))
     greedy = generate_fast(model, context)
-    assert torch.equal(greedy, model.generate_naive(context))
+    assert torch.equal(greedy, generate_naive(model, context))
     assert len(greedy.unique()) > 1
     fast = generate_fast(model, context, temperature=1.0, generator=torch.Generator().manual_seed(seed))
-    naive = model.generate_naive(context, temperature=1.0, generator=torch.Generator().manual_seed(seed))
+    naive = generate_naive(model, context, temperature=1.0, generator=torch.Generator().manual_seed(seed))
     assert torch.equal(fast, naive)
 
 
@@ -178,7 +179,7 @@ def test_the_kernels_weights_are_named_as_the_kernel_takes_them_and_follow_the_m
     with torch.no_grad():
         for p in model.parameters():
             p.mul_(3.0)
-    assert torch.equal(generate_fast(model, context), model.generate_naive(context))  # laid out anew each call
+    assert torch.equal(generate_fast(model, context), generate_naive(model, context))  # laid out anew each call
 
 
 def test_learning_rate_halves_every_halflife_and_is_constant_without_one():

@@ -1,6 +1,7 @@
-"""The code's shape: in the product (everything but the lab, `dynplan/analysis` and `dynplan/bench`) no function is
-longer than 60 lines; nowhere does one take more than 8 parameters (ruff's PLR0913, which the suite runs with the
-rest of the lint and the formatter's check)."""
+"""The shape of the code and the tree: in the product (all but the lab, `dynplan/analysis` and `dynplan/bench`) no
+function is longer than 60 lines; nowhere does one take more than 8 parameters (ruff's PLR0913, which the suite
+runs with the rest of the lint and the formatter's check); the docs a newcomer reads stay short; the tracked tree
+stays under 30 MB."""
 
 import ast
 import shutil
@@ -38,3 +39,21 @@ def test_ruff_is_clean(command):
         pytest.skip("ruff is not installed (the dev extra has it)")
     proc = subprocess.run([ruff, *command], cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-1000:]
+
+
+#: What a newcomer reads, kept short enough to read: the design record, the experiments, the results page, README.
+DOC_LIMITS = {"docs/design.md": 25_000, "docs/experiments.md": 20_000, "docs/results.md": 20_000, "README.md": 12_000}
+
+
+@pytest.mark.parametrize(("path", "limit"), DOC_LIMITS.items())
+def test_the_docs_a_newcomer_reads_stay_short(path, limit):
+    assert len((ROOT / path).read_bytes()) <= limit
+
+
+def test_the_tracked_tree_stays_under_30_mb():
+    """Weights of candidates that were not adopted leave the tree (their records stay); the store's rows are compact."""
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout: no list of tracked files")
+    listed = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
+    sizes = {name: (ROOT / name).stat().st_size for name in listed.decode().split("\0") if (ROOT / name).is_file()}
+    assert sum(sizes.values()) <= 30_000_000, sorted(sizes.items(), key=lambda item: -item[1])[:5]

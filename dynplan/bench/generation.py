@@ -12,6 +12,7 @@ from functools import partial
 
 import torch
 
+from dynplan.bench.reference import generate_naive
 from dynplan.models.batched import batched_weights, generate_batched
 from dynplan.models.generation import generate_fast, kernel_weights
 from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
@@ -48,7 +49,7 @@ def bench_generation(frames: int = 5, repeats: int = 3, samples: int = 5, thread
         def fast(model, context, kernel=kernel):
             return generate_fast(model, context, weights=kernel)
 
-        for case, generate in (("naive", ConditionalPixelCNN.generate_naive), ("fast", fast)):
+        for case, generate in (("naive", generate_naive), ("fast", fast)):
             _ms_per_frame(generate, prior, tokenizer, 1, samples)  # warm-up
             timings[case] = statistics.median(
                 _ms_per_frame(generate, prior, tokenizer, frames, samples) for _ in range(repeats)

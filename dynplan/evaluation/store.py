@@ -165,7 +165,7 @@ class Run:
     def append(self, row: Mapping) -> bool:
         """Append one episode's row, unless the run already holds that case with the same provenance (then return
         False): concurrent writers never duplicate a row. A torn last line is cut off first."""
-        line = (json.dumps(dict(row), separators=(", ", ": ")) + "\n").encode()
+        line = (json.dumps(dict(row), separators=(",", ":")) + "\n").encode()
         identity = _identity(row)
         with self._locked(), _INDEX_LOCK, open(self.episodes_path, "a+b") as f:
             index = _index(f, self.episodes_path, truncate=True)

@@ -1,7 +1,7 @@
 """Fast autoregressive generation for the conditional gated PixelCNN, with per-position caching.
 
-The naive way (`ConditionalPixelCNN.generate_naive`) runs the whole network once per position: h·w full
-passes per grid. Here every feature is computed once, when its inputs exist (as in Fast PixelCNN++):
+The naive way (`dynplan.bench.reference.generate_naive`, the tests' reference) runs the whole network once per
+position: h·w full passes per grid. Here every feature is computed once, when its inputs exist (as in Fast PixelCNN++):
 
 * the conditioning map, and each layer's projection of it, once per grid;
 * at the start of row i, every layer's vertical stack for row i — it depends on rows above only;

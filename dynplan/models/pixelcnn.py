@@ -194,21 +194,6 @@ class ConditionalPixelCNN(nn.Module):
         accuracy = (logits.argmax(-1) == target).float().mean()
         return PriorOutput(logits.permute(0, 3, 1, 2), loss, accuracy)
 
-    @torch.inference_mode()
-    def generate_naive(self, context: torch.Tensor, temperature: float = 0.0,
-                       generator: torch.Generator | None = None) -> torch.Tensor:  # fmt: skip
-        """The next code grid, one full forward pass per position (the slow reference): greedy (argmax) when
-        `temperature` is 0, else sampled at that temperature. context (B, 4, h, w) → codes (B, h, w)."""
-        B, _, h, w = context.shape
-        condition = self.condition(context)
-        uniforms = draw_uniforms(B, h, w, temperature, generator)
-        codes = torch.zeros(B, h, w, dtype=torch.long)
-        for i in range(h):
-            for j in range(w):
-                logits = self.logits(codes, condition)[:, :, i, j]
-                codes[:, i, j] = pick(logits, temperature, uniforms[:, i, j])
-        return codes
-
 
 def draw_uniforms(B: int, h: int, w: int, temperature: float, generator: torch.Generator | None) -> torch.Tensor:
     """The uniform numbers a sampled grid uses, one per position, drawn up front (float64 (B, h, w); unused
