@@ -35,8 +35,8 @@ from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.agent import AgentSpec
-from dynplan.evaluation.cases import VALIDATION_SEED_START, Case
-from dynplan.evaluation.protocol import case_agent
+from dynplan.evaluation.cases import VALIDATION_SEED_START
+from dynplan.evaluation.protocol import world_agent
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra
 from dynplan.files import atomic_path
@@ -74,10 +74,9 @@ def build_state(seed: int | None = None, log: str | None = None, agent_speed: fl
         from dynplan.models.world_model import load_world_model
 
         imagined = load_world_model(model=model, caution={"occupancy": 0.0, "margin": 0})
-    agent = AgentSpec(technique=technique_name, model=model, rollout_steps=k)
-    chosen = agent.plans_with
-    case = Case(technique_name, agent_speed, k if chosen.search else None, int(world.seed), agent.model)
-    planner, forward = case_agent(case, world, agent)
+    planner, forward = world_agent(
+        world, AgentSpec(technique=technique_name, model=model, rollout_steps=k), agent_speed
+    )
     return PlayState(world, agent_speed, imagined, planner, forward, k)
 
 

@@ -93,3 +93,13 @@ def test_deaths_replay_with_the_caution_their_result_records(monkeypatch):
     # absent: off (a record without the field), not the configuration's current own
     off = {"occupancy": 0, "margin": 0}
     assert seen == [off, {**off, "occupancy": 0.1}, {**off, "occupancy": 0.1, "margin": 1}]
+
+
+def test_a_death_played_with_a_setting_the_code_lacks_is_not_replayed():
+    from dynplan.analysis.deaths import recorded_caution
+
+    record = {"technique": "samples5", "agent_speed": 1.0, "rollout_steps": 1, "seed": 7, "model": "default",
+              "outcome": "death", "playouts": 100, "occupancy": 0.1}  # fmt: skip
+    assert recorded_caution(record) == {"occupancy": 0.1, "margin": 0}
+    with pytest.raises(ValueError, match="seed 7 was played with span, which this code does not have"):
+        recorded_caution({**record, "span": 1})

@@ -144,6 +144,24 @@ def test_replay_round_trips_through_the_reader(tmp_path, eval_logs):
     assert Image.open(gif).n_frames == result.steps
 
 
+def test_an_agent_spec_is_checked_whole_and_plays_any_technique():
+    from dynplan.evaluation.protocol import plan_episode
+
+    spec = AgentSpec(technique="model", model="paper", samples=2, rollout_steps=1, playouts=10, seed=2**40)
+    assert spec.plans_with.samples == 2 and spec.own_caution.recorded() == {}
+    assert plan_episode(EVAL_SEED_START, spec).outcome in {"goal", "timeout", "death"}  # a learned "model" too
+    assert AgentSpec(technique="oracle", model="paper").model is None  # no world model, no configuration
+    assert CasePlan(first_seed=2**40, episodes=2).cases()[-1].seed == 2**40 + 1
+    for bad, message in [(dict(technique="oracle", caution={"occupancy": 2.0}), "occupancy=2.0 is invalid"),
+                         (dict(technique="samples5", samples=3), "give them with technique 'model'"),
+                         (dict(model="paper", caution={"occupancy": 0.1}), "'paper' has none"),
+                         (dict(seed=-1), "seed=-1 is invalid")]:  # fmt: skip
+        with pytest.raises(ConfigError, match=message):
+            AgentSpec(**bad)
+    plan = CasePlan(techniques=["random", "samples5", "oracle"], models=["default", "paper"])
+    assert plan.pairs() == [("random", None), ("samples5", "default"), ("samples5", "paper"), ("oracle", None)]
+
+
 def test_replay_errors(tmp_path, eval_logs):
     log = log_path(eval_logs, EVAL_SEED_START)
     with pytest.raises(LogError, match="missing.mcap: no such file"):

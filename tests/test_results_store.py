@@ -42,6 +42,22 @@ def test_rows_round_trip_and_a_case_is_written_once(tmp_path):
     assert all(json.loads(line) for line in run.episodes_path.read_text().splitlines())
 
 
+def test_a_setting_the_code_no_longer_has_keeps_its_rows_apart(tmp_path):
+    """A row recorded with a caution setting of other code (`span`, docs/experiments.md) is its own case's row only
+    under a manifest that names the setting: it is no duplicate of a row played without it, and never counts for
+    a run that did not play with it."""
+    with_span, without = Run(tmp_path, "with"), Run(tmp_path, "without")
+    learned = dict(technique="samples5", model="default", occupancy=0.1)
+    begin(with_span, "validation", caution={"occupancy": 0.1, "span": 1})
+    begin(without, "validation", caution={"occupancy": 0.1})
+    for run in (with_span, without):
+        assert run.append(row(**learned, span=1)) and run.append(row(**learned))  # two provenances, two rows
+        assert not run.append(row(**learned, span=1))
+    assert with_span.current() == [row(**learned, span=1)]
+    assert without.current() == [row(**learned)]
+    assert without.find(row(**learned), without.expected(row(**learned))) == row(**learned)
+
+
 def test_a_torn_last_row_is_reported_cut_and_played_again(tmp_path):
     run = Run(tmp_path)
     run.append(row(EVAL_SEED_START))

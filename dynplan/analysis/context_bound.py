@@ -1,6 +1,6 @@
 """The context bound: how well any point prediction from the last N frames can place the obstacles on the road.
 
-The floor (`dynplan.analysis.prediction.foreseeable_frames`) assumes the obstacles already on the road are
+The floor (`dynplan.evaluation.prediction.foreseeable_frames`) assumes the obstacles already on the road are
 known exactly. A model sees them only as pixels: an obstacle's left end is its continuous position rounded, so
 N frames leave its speed (one of its class's `SPEED_CHOICES`) and its sub-pixel phase (its age) uncertain — a
 0.2 px/step truck can sit still for all of four frames. `ContextBoundModel` keeps, for each obstacle on the road

@@ -29,6 +29,7 @@ from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import ROLLOUT_STEPS, Case
 from dynplan.evaluation.protocol import case_agent
+from dynplan.evaluation.store import PROVENANCE_KEYS, provenance_of
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import read_episode_log
@@ -107,7 +108,12 @@ def replay_death(case: Case, log_dir: str, playouts: int = 100, model_dir: str |
 
 def recorded_caution(record: dict) -> dict[str, float]:
     """The caution a result was played with: every setting it records, and off where it records none (a result
-    records only the settings that were on, and none from before a setting existed)."""
+    records only the settings that were on, and none from before a setting existed). A ValueError for a result
+    played with a setting this code does not have (docs/experiments.md): it cannot be replayed as it was played."""
+    unknown = sorted(set(provenance_of(record)) - set(PROVENANCE_KEYS))
+    if unknown:
+        raise ValueError(f"the result of seed {record.get('seed')} was played with {', '.join(unknown)}, which this "
+                         "code does not have (docs/experiments.md names the commit that does)")  # fmt: skip
     return {name: record.get(name, 0) for name in Caution.model_fields}
 
 

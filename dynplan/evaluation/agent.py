@@ -1,9 +1,9 @@
 """An agent as one frozen, validated spec: what plans — a technique and, for a learned one, its world-model
 configuration, weights and caution — and how — samples, futures, playouts, horizon, device, seed.
 
-Evaluation, replay, play, the benchmarks and every flow build one `AgentSpec` from their arguments and pass it
-whole; every rule about an agent's settings (ranges, "occupancy needs patch-local codes", a known technique and
-configuration, a device that exists) is checked here, when the spec is made. An evaluation plays many cases with
+Evaluation, replay, play, the evaluation benchmarks and every flow build one `AgentSpec` from their arguments and
+pass it whole; the rules about an agent's settings (ranges, "occupancy needs patch-local codes", a known technique
+and configuration, a device that exists) are checked when the spec is made. An evaluation plays many cases with
 one spec: `for_case` gives each case's own (its technique, configuration, horizon and seed).
 """
 
@@ -46,7 +46,7 @@ class AgentSpec(Config):
     playouts: int = Field(100, ge=1, le=1_000_000, description="MCTS playouts per decision")
     rollout_steps: int = Field(3, ge=1, le=64, description="horizon k: predicted frames the search consults")
     device: str = Field("cpu", description="where a learned model generates its batches: cpu or cuda[:N]")
-    seed: int = Field(0, ge=0, le=2**32 - 1, description="seed of the world model's draws and the planner's own")
+    seed: int = Field(0, ge=0, le=2**62, description="seed of the world model's draws and the planner's own")
 
     @model_validator(mode="before")
     @classmethod
@@ -64,6 +64,7 @@ class AgentSpec(Config):
     def _check(self) -> AgentSpec:
         if self.technique != LEARNED and self.technique not in TECHNIQUES:
             raise ValueError(f"technique must be one of {[*TECHNIQUES, LEARNED]}, got {self.technique!r}")
+        Caution(**self.caution)  # the overrides' ranges, whatever the technique
         if self.technique != LEARNED and (self.samples or self.futures):
             raise ValueError(f"samples and futures are technique {self.technique!r}'s own; give them with "
                              f"technique {LEARNED!r}")  # fmt: skip

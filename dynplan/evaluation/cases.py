@@ -50,13 +50,23 @@ class Case:
 
     @property
     def group(self) -> str:
-        k = "none" if self.rollout_steps is None else self.rollout_steps
-        technique = self.technique if self.model is None else f"{self.technique}-{self.model}"
-        return f"{technique}/speed{self.agent_speed:g}_k{k}"
+        return case_group(self.technique, self.model, self.agent_speed, self.rollout_steps)
 
     def planner_seed(self) -> int:
         """A seed for the planner's own randomness, fixed per case."""
-        return zlib.crc32(f"{self.group}/{self.seed}".encode())
+        return planner_seed(self.group, self.seed)
+
+
+def case_group(technique_name: str, model: str | None, agent_speed: float, rollout_steps: int | None) -> str:
+    """The name of a case's group (technique and configuration, speed, horizon; None: no search)."""
+    k = "none" if rollout_steps is None else rollout_steps
+    label = technique_name if model is None else f"{technique_name}-{model}"
+    return f"{label}/speed{agent_speed:g}_k{k}"
+
+
+def planner_seed(group: str, seed: int) -> int:
+    """The seed of a planner's own randomness on the world of `seed` in the case group `group`."""
+    return zlib.crc32(f"{group}/{seed}".encode())
 
 
 def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
@@ -91,8 +101,9 @@ class CasePlan(Config):
     models: tuple[str, ...] = Field(("default",), description="world-model configurations of the learned techniques")
     agent_speeds: tuple[float, ...] = Field(AGENT_SPEEDS, description="agent speeds: 1.0 (2×) and/or 0.5 (1×)")
     rollout_steps: tuple[int, ...] = Field(ROLLOUT_STEPS, description="horizons k of the searching techniques")
-    episodes: int = Field(EVAL_EPISODES, ge=1, le=10_000, description="episodes per case")
-    first_seed: int = Field(EVAL_SEED_START, ge=0, description="seed of the first episode (validation: 2000000)")
+    episodes: int = Field(EVAL_EPISODES, ge=1, le=10_000_000, description="episodes per case")
+    first_seed: int = Field(EVAL_SEED_START, ge=0, le=2**62, description="seed of the first episode (validation: "
+                            "2000000)")  # fmt: skip
     table1: bool = Field(False, description="every case of the complete Table 1, whatever the lists above say")
 
     @model_validator(mode="after")
@@ -109,12 +120,16 @@ class CasePlan(Config):
 
     def cases(self) -> list[Case]:
         """Every case of the plan."""
-        ks = tuple(self.rollout_steps)
         if self.table1:
-            return table1_cases(self.episodes, self.first_seed, ks)
-        return cases(list(self.techniques), tuple(self.agent_speeds), ks, self.episodes, self.first_seed,
-                     tuple(self.models))  # fmt: skip
+            return table1_cases(self.episodes, self.first_seed, self.rollout_steps)
+        return cases(list(self.techniques), self.agent_speeds, self.rollout_steps, self.episodes, self.first_seed,
+                     self.models)  # fmt: skip
 
     def pairs(self) -> list[tuple[str, str | None]]:
-        """Each (technique, world-model configuration) the plan plays (None: a technique without one)."""
-        return sorted({(c.technique, c.model) for c in self.cases()}, key=str)
+        """Each (technique, world-model configuration) the plan plays (None: a technique without one), in Table 1's
+        order."""
+        table = TABLE1.items() if self.table1 else [(speed, self.techniques) for speed in self.agent_speeds]
+        models = tuple(WORLD_MODELS) if self.table1 else self.models
+        names = dict.fromkeys(name for _, names in table for name in names)
+        return [(name, model if technique(name).world_model else None) for name in names
+                for model in (models if technique(name).world_model else (None,))]  # fmt: skip

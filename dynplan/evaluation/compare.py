@@ -13,7 +13,7 @@ import json
 import os
 import statistics
 
-from dynplan.evaluation.store import PROVENANCE_KEYS, Run, case_key
+from dynplan.evaluation.store import Run, case_key, provenance_of
 
 
 def _median_ms(rows) -> float:
@@ -38,7 +38,7 @@ def compare_runs(a: Run, b: Run) -> dict:
             "cases": len(pairs),
             "outcome_or_steps_differ": len(differing),
             "differing_seeds": differing,
-            "provenance_differs": sum(any(x.get(f) != y.get(f) for f in PROVENANCE_KEYS) for x, y in pairs),
+            "provenance_differs": sum(provenance_of(x) != provenance_of(y) for x, y in pairs),
             "goals": [sum(r["outcome"] == "goal" for r in side) for side in sides],
             "median_decision_ms": [_median_ms(side) for side in sides],
         }

@@ -17,7 +17,7 @@ from dynplan.data.collect import log_path
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World, generate_world
 from dynplan.evaluation.agent import AgentSpec, Planner
-from dynplan.evaluation.cases import Case
+from dynplan.evaluation.cases import Case, case_group, planner_seed
 from dynplan.evaluation.provenance import provenance as case_provenance
 from dynplan.evaluation.store import Run, code_version
 from dynplan.logs.reader import LogError, read_episode_log
@@ -40,11 +40,17 @@ def plan_episode(world: World | int, spec: AgentSpec | None = None, agent_speed:
     if isinstance(world, int | np.integer):
         world = generate_world(RoadConfig(agent_speed=agent_speed), int(world))
     spec = spec or AgentSpec()
+    planner, forward = world_agent(world, spec, agent_speed)
+    return run_episode(world, planner, forward, agent_speed, spec.rollout_steps)
+
+
+def world_agent(world: World, spec: AgentSpec, agent_speed: float) -> tuple[Planner, ForwardModel | None]:
+    """The agent `spec` on the recorded `world` at `agent_speed`, seeded as the evaluation seeds its case: the
+    world model from the world's seed, the planner from the case's own (any technique, "model" included)."""
     chosen = spec.plans_with
-    case = Case(spec.technique, agent_speed, spec.rollout_steps if chosen.search else None, int(world.seed),
-                spec.model if chosen.world_model else None)  # fmt: skip
-    planner, forward = case_agent(case, world, spec)
-    return run_episode(world, planner, forward, agent_speed, case.rollout_steps or 1)
+    k, model = (spec.rollout_steps if chosen.search else None), (spec.model if chosen.world_model else None)
+    agent = spec.for_case(spec.technique, model, k, int(world.seed))
+    return agent.build(world, agent_speed, planner_seed(case_group(spec.technique, model, agent_speed, k), world.seed))
 
 
 def run_case(case: Case, log_dir: str | os.PathLike, run: Run, spec: AgentSpec | None = None) -> dict:
@@ -59,9 +65,9 @@ def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run,
     world share each prediction of a frame they all see) and append each one's row to `run` the moment its episode
     finishes — or return the run's row of a case, if one was played with the same playouts, against the same log
     and (learned techniques) the same weights and caution. `spec`: the agents' settings each case specialises
-    (playouts, weights, caution overrides, device — not part of a row's provenance: the same arithmetic, up to float
-    summation order). A row's `wall_s` is its episode's share of the batch: reading its log, building its agent
-    and its decisions."""
+    (playouts, weights, caution overrides — all part of a row's provenance — and the device, which is not: the same
+    arithmetic, up to float summation order). A row's `wall_s` is its episode's share of the batch: reading its log,
+    building its agent and its decisions."""
     spec = spec or AgentSpec()
     rows: list[dict | None] = [None] * len(cases)
     provenances = [case_provenance(case, log_dir, spec) for case in cases]

@@ -40,6 +40,8 @@ EVALUATION_RUN = "evaluation"
 CASE_KEYS = ("technique", "model", "agent_speed", "rollout_steps", "seed")
 #: What a result depends on besides its case (a caution setting is recorded only while it is on).
 PROVENANCE_KEYS = ("playouts", "log_sha256", "world_model_sha256", *Caution.model_fields)
+#: What a row records of how its episode went; every other key of a row is its case or its provenance.
+RESULT_KEYS = ("outcome", "steps", "decision_ms", "wall_s", "code_version")
 _RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
 
 
@@ -66,10 +68,18 @@ def case_key(row: Mapping) -> tuple:
     return tuple(row.get(k) for k in CASE_KEYS)
 
 
-def provenance_of(row: Mapping, keys: Iterable[str] = PROVENANCE_KEYS) -> dict:
-    """The provenance fields a row records (a caution setting that is off is absent): `keys`, by default those of
-    the caution the code knows; a run's manifest may name settings of a caution recorded with other code."""
-    return {k: row.get(k) for k in keys}
+def provenance_of(row: Mapping) -> dict:
+    """The provenance a row records: `PROVENANCE_KEYS` (None where absent: a caution setting that is off) and any
+    other key that is neither its case nor its result — a setting recorded by code that had it, which a row
+    played without it does not share."""
+    extra = {k: v for k, v in row.items() if k not in (*CASE_KEYS, *RESULT_KEYS, *PROVENANCE_KEYS)}
+    return {**{k: row.get(k) for k in PROVENANCE_KEYS}, **extra}
+
+
+def same_provenance(row: Mapping, expected: Mapping) -> bool:
+    """Whether `row` was played with the provenance `expected` (`expected_provenance`), key for key."""
+    recorded = provenance_of(row)
+    return all(recorded.get(k) == expected.get(k) for k in recorded.keys() | expected.keys())
 
 
 def check_run_name(name: str) -> str:
@@ -200,8 +210,7 @@ class Run:
         for row in self.rows():
             if row.get("seed") not in seeds:
                 continue
-            expected = expected_provenance(manifest, row)
-            if provenance_of(row, expected) == expected:
+            if same_provenance(row, expected_provenance(manifest, row)):
                 out[case_key(row)] = row
         return list(out.values())
 
@@ -275,7 +284,7 @@ _INDEX_LOCK = threading.Lock()
 
 
 def _identity(row: Mapping) -> str:
-    return json.dumps([case_key(row), provenance_of(row)])
+    return json.dumps([case_key(row), provenance_of(row)], sort_keys=True)
 
 
 def _index(f, path: Path, truncate: bool = False) -> dict[str, dict]:

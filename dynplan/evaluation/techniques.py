@@ -54,7 +54,7 @@ def learned_model(model: str, samples: int, seed: int, futures: int = 0, model_d
     """The learned forward model of configuration `model` (weights loaded once per content; see
     `world_model_paths`), with the configuration's own caution except where `caution` (field → value) overrides
     it, generating batches on `device`."""
-    parts = world_model_parts(world_model_paths(model, None if model_dir is None else str(model_dir)), model)
+    parts = world_model_parts(world_model_paths(model, model_dir), model)
     return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed, caution=caution_for(model, caution),
                              device=device)  # fmt: skip
 

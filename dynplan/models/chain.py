@@ -4,8 +4,8 @@ from the generation's own logits.
 
 The generation path is chosen by how many grids are generated together: the compiled kernel
 (`generation.generate_fast`) for small batches on the CPU, the batched generation (`batched.generate_batched`:
-matrix–matrix products over the batch) for large ones and on a GPU. Both give the same codes (the tests compare
-them with the prior's naive one-position-at-a-time generation).
+matrix–matrix products over the batch) for large ones and on a GPU. Both give the codes of the naive
+one-position-at-a-time generation (`dynplan.bench.reference.generate_naive`), which the tests compare them with.
 """
 
 from __future__ import annotations
@@ -47,7 +47,8 @@ class ChainSpec:
     """How to chain: on which `device` the batched generation runs; `streams`, when sampling, are consecutive
     groups of rows (generator, rows), each drawing its numbers from its own generator, one grid after another and
     only for its rows' length (equal within a group), so a shorter chain is a longer one's prefix; `table` (K, P)
-    float32: each code's obstacle pixels (P = ph · pw), to return the per-pixel obstacle probability too."""
+    float32: each code's obstacle pixels (P = ph · pw), to return the per-pixel obstacle probability too, laid out
+    as frames by `patch` (ph, pw), the pixels one code covers."""
 
     device: str = "cpu"
     streams: Sequence[tuple[torch.Generator, int]] = ()

@@ -188,7 +188,7 @@ def _groups(counts: Sequence[int], models: Sequence[LearnedWorldModel], ks: Sequ
 
 
 def _decoder_samples(models: Sequence[LearnedWorldModel], ks: Sequence[int], obs: _Observations,
-                     params: tuple) -> list[list[np.ndarray]]:  # fmt: skip
+                     params: torch.Tensor) -> list[list[np.ndarray]]:  # fmt: skip
     """Each episode's decoder samples (as a one-item list; empty without samples): (samples, k, H, W) uint8, drawn
     once per observation and seed — the most any model asks for — from the greedy chain's decoder `params`."""
     pixel, others = models[0].tokenizer.pixel, [[] for _ in models]

@@ -86,6 +86,7 @@ class _Episode:
     model: ForwardModel | None
     horizon: int
     env: RoadEnv = field(init=False)
+    first: tuple[int, np.ndarray] = field(init=False)  # (t, position) before the first step
     times: list[float] = field(default_factory=list)
     steps: list[tuple] = field(default_factory=list)  # (t, position, action, reward, outcome) after each step
 

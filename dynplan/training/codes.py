@@ -1,6 +1,6 @@
 """The Z-code store: every frame of the frames store encoded by a trained VQ-VAE, as a Zarr array beside it.
 
-`codes_<name>` has shape (episode, time, h, w) — (…, n) with several codebooks per position — uint16, one
+`codes_<name>` has shape (episode, time, h, w), uint16, one
 chunk per episode, and records which checkpoint (path and SHA-256) made it and a digest of the frames store's
 episodes it encodes. Encoding runs with dask, one task per episode chunk, on whatever scheduler is active.
 Rebuilding with the same checkpoint only encodes episodes added to the frames store since; another checkpoint,
@@ -42,7 +42,6 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
     store, checkpoint = str(store), str(Path(checkpoint).resolve())
     model = _model(checkpoint)
     h, w = model.config.grid
-    code_shape = (h, w)
     group = zarr.open_group(store, mode="a", use_consolidated=False)
     frames = group["frames"]
     checksums = committed_checksums(store)
@@ -59,8 +58,8 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
     if done == 0:
         if array_name in group:
             del group[array_name]
-        dims = ("episode", "time", "code_y", "code_x", "codebook")[: 2 + len(code_shape)]
-        group.create_array(array_name, shape=(0, T, *code_shape), chunks=(1, T, *code_shape), dtype="uint16",
+        dims = ("episode", "time", "code_y", "code_x")
+        group.create_array(array_name, shape=(0, T, h, w), chunks=(1, T, h, w), dtype="uint16",
                            dimension_names=dims, compressors=COMPRESSORS)  # fmt: skip
     codes = group[array_name]
     commit_rows(codes, done)  # rows after the recorded ones are from an interrupted encoding
@@ -77,7 +76,7 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
     for start in progress(range(done, E, batch), total=len(range(done, E, batch)), description=array_name):
         stop = min(E, start + batch)
         source = da.from_zarr(frames)[start:stop]
-        encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, *code_shape))
+        encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, h, w))
         da.store(encoded, staged(codes, stop), regions=(slice(start, stop),), lock=False)
         commit_rows(codes, stop)  # written, then shown
         record(stop)
