@@ -240,7 +240,8 @@ class _Generation:
 
     def _position(self, i: int, j: int) -> None:
         """Position (i, j): every layer's horizontal stack, the head's logits and (with a table) the expected row."""
-        C, L, weights = self.shape[4], self.shape[3], self.w
+        _, _, _, L, C = self.shape
+        weights = self.w
         for layer, (h_weight, out_weight, out_bias, residual) in enumerate(self.layers):
             pre = torch.addmm(self.row_terms[layer][:, j], self.windows[layer][j], h_weight)
             gated = torch.tanh(pre[:, :C]) * torch.sigmoid(pre[:, C:])
