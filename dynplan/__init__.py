@@ -10,6 +10,10 @@ The few entry points a user starts from:
 Importing dynplan registers the Gymnasium environment `dynplan/Road-v0`.
 """
 
+from dynplan.cli import interrupt_while_loading
+
+interrupt_while_loading()  # before the heavy imports below
+
 from typing import Any
 
 import gymnasium

@@ -19,6 +19,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from dynplan.paths import PathError
+
 #: This host, as a temporary file's name records it ('.' in a host name would split the fields).
 _HOST = socket.gethostname().replace(".", "-")
 #: `.<target>.<host>.<pid>.<random>.tmp[<suffix>]`
@@ -28,15 +30,13 @@ _TEMP_NAME = re.compile(r"\.([^.]+)\.(\d+)\.[A-Za-z0-9_]+\.tmp(\.[^.]*)?$")
 FOREIGN_STALE_S = 24 * 3600.0
 
 
-class OutputError(ValueError):
-    """An output path cannot be used; the message names the parameter, the path and why."""
-
-
 @contextmanager
 def atomic_path(path: str | os.PathLike, keep_suffix: bool = False) -> Iterator[Path]:
     """Yield a temporary path in `path`'s folder; on success it is renamed to `path`, on error removed.
     `keep_suffix`: the temporary name ends in `path`'s suffix too (for writers that pick a format by it)."""
     path = Path(path)
+    if path.exists() and not path.is_file():
+        raise PathError(f"{path}: is not a regular file; only regular files are written")
     path.parent.mkdir(parents=True, exist_ok=True)
     suffix = ".tmp" + (path.suffix if keep_suffix else "")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{_HOST}.{os.getpid()}.", suffix=suffix, dir=path.parent)
@@ -48,6 +48,10 @@ def atomic_path(path: str | os.PathLike, keep_suffix: bool = False) -> Iterator[
     try:
         yield tmp_path
         os.replace(tmp_path, path)
+    except OSError as error:
+        if error.filename is None:  # a full disk or a write limit names no file: name the one being written
+            raise OSError(error.errno, error.strerror, str(path)) from error
+        raise
     finally:
         tmp_path.unlink(missing_ok=True)
 
@@ -144,34 +148,3 @@ def stale_temporaries(folder: str | os.PathLike, target_glob: str = "*") -> list
         if gone:
             stale.append(tmp)
     return stale
-
-
-def _inside(path: Path, folder: Path) -> bool:
-    return folder in path.parents
-
-
-def check_output(path: str | os.PathLike, parameter: str, kind: str = "file",
-                 inputs: tuple[str | os.PathLike, ...] = ()) -> Path:  # fmt: skip
-    """Check, before any work, that `path` can be written as a `kind` ("file" or "folder"): it is not one of
-    `inputs`, not inside an input folder (a file) nor holding an input (a folder), not the other kind, and its
-    folder is writable. Returns it resolved; otherwise an OutputError naming `parameter`, the path and why."""
-    out = Path(path).expanduser().resolve()
-    for source in inputs:
-        source = Path(source).expanduser().resolve()
-        if out == source:
-            raise OutputError(f"{parameter} {path}: is an input of this command; choose another path")
-        if kind == "file" and source.is_dir() and _inside(out, source):
-            raise OutputError(f"{parameter} {path}: is inside {source}, which this command reads; choose another path")
-        if kind == "folder" and _inside(source, out):
-            raise OutputError(f"{parameter} {path}: holds {source}, which this command reads; choose another path")
-    if kind == "file" and out.is_dir():
-        raise OutputError(f"{parameter} {path}: is a folder; give the path of a file")
-    if kind == "folder" and out.exists() and not out.is_dir():
-        raise OutputError(f"{parameter} {path}: is a file; give the path of a folder")
-    start = out if kind == "folder" and out.is_dir() else out.parent
-    folder = next(candidate for candidate in (start, *start.parents) if candidate.exists())
-    if not folder.is_dir():
-        raise OutputError(f"{parameter} {path}: {folder} is a file, so nothing can be written under it")
-    if not os.access(folder, os.W_OK):
-        raise OutputError(f"{parameter} {path}: {folder} is not writable")
-    return out

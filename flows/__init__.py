@@ -7,5 +7,9 @@ ephemeral API to start (Prefect's 20 s is too short on a busy host with few core
 
 import os
 
+from dynplan.cli import interrupt_while_loading
+
+interrupt_while_loading()
+
 os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
 os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")

@@ -64,12 +64,13 @@ def bench_pipeline(quick: bool = True) -> dict[str, dict[str, float]]:
 
 
 def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
-    import argparse
-
+    from dynplan.cli import CommandParser
     from dynplan.files import write_bytes_atomic
+    from dynplan.paths import PathArgument, PathKind
 
-    parser = argparse.ArgumentParser(prog="python -m flows.bench_pipeline", description=__doc__)
-    parser.add_argument("--out", required=True, help="where to write the figures (JSON)")
+    parser = CommandParser(prog="python -m flows.bench_pipeline", description=__doc__)
+    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FILE), required=True,
+                        help="where to write the figures (JSON)")  # fmt: skip
     parser.add_argument("--no-quick", action="store_true", help="time the Dask evaluation only")
     args = parser.parse_args(argv)
     results = bench_pipeline(quick=not args.no_quick)
@@ -78,4 +79,6 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
 
 
 if __name__ == "__main__":
-    main()
+    from dynplan.cli import run_command
+
+    run_command(main, "python -m flows.bench_pipeline")

@@ -19,13 +19,14 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
+from dynplan.cli import CommandParser
 from dynplan.data.build import build_frame_store
 from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem
 from dynplan.data.verify import verify_store
-from dynplan.files import check_output
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.cli import add_debug_option, run
-from flows.runners import dask_address, dask_scheduler, task_runner
+from flows.runners import add_dask_option, checked_dask_address, dask_scheduler, task_runner
 
 
 @task(name="inspect-log", cache_policy=NO_CACHE)
@@ -62,27 +63,30 @@ def verify(store: str, log_dir: str | None, as_json: bool) -> dict:
     if as_json:
         print(json.dumps(report.to_dict()))
     if report.unrepaired:
-        hint = "" if log_dir else "; give the folder of its logs to repair them"
-        print(f"python -m flows.build_datasets: {len(report.unrepaired)} damaged chunks remain in {store}{hint}",
-              file=sys.stderr)  # fmt: skip
+        hint = "" if log_dir else "; give the folder of its logs to repair what they determine"
+        print(f"python -m flows.build_datasets: {len(report.unrepaired)} damaged chunks or metadata remain in "
+              f"{store}{hint}", file=sys.stderr)  # fmt: skip
         raise SystemExit(1)
     return report.to_dict()
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m flows.build_datasets", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("log_dir", nargs="?", help="folder of episode logs (*.mcap); with --verify, optional")
-    parser.add_argument("--out", default="datasets/frames.zarr", help="Zarr store to create or extend")
-    parser.add_argument("--verify", metavar="STORE", help="check every chunk of STORE (and repair it from LOG_DIR)")
-    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    parser = CommandParser(prog="python -m flows.build_datasets", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("log_dir", nargs="?", type=PathArgument(PathKind.LOG_FOLDER),
+                        help="folder of episode logs (*.mcap); with --verify, optional")  # fmt: skip
+    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/frames.zarr",
+                        help="Zarr store to create or extend")  # fmt: skip
+    parser.add_argument("--verify", metavar="STORE", type=PathArgument(PathKind.STORE),
+                        help="check every chunk of STORE (and repair it from LOG_DIR)")  # fmt: skip
+    add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     add_debug_option(parser)
     args = parser.parse_args(argv)
-    address = dask_address(args.dask_address)
     try:
-        if args.log_dir is not None:
-            list_logs(args.log_dir)
+        address = checked_dask_address(args.dask_address) if args.verify is None else None
+        if args.log_dir is not None and not any(Path(args.log_dir).glob("*.mcap")):
+            raise ValueError(f"log_dir {args.log_dir}: holds no episode logs (*.mcap)")
         if args.verify is not None:
             if not Path(args.verify, "zarr.json").is_file():
                 raise FileNotFoundError(f"--verify {args.verify}: no Zarr store there")

@@ -11,19 +11,24 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import logging
 import os
 import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import IO
 
 import httpx
 import prefect
 from prefect.settings import PREFECT_API_URL, PREFECT_UI_URL, get_current_settings, temporary_settings
+
+from dynplan.cli import run_command
 
 #: Seconds to wait for the temporary server's health check.
 STARTUP_TIMEOUT_S = 120.0
@@ -56,10 +61,37 @@ def _drain_prefect() -> None:
             worker.drain_all(timeout=10)
 
 
+def _last_line(log: IO[bytes]) -> str:
+    log.seek(0)
+    lines = log.read().decode(errors="replace").strip().splitlines()
+    return f": {lines[-1]}" if lines else ""
+
+
+def _wait_until_healthy(server: subprocess.Popen, url: str, log: IO[bytes]) -> None:
+    """Wait for the server's health check; a server that exits or stays silent is a RuntimeError saying so."""
+    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    with httpx.Client() as client:
+        while True:
+            if server.poll() is not None:
+                raise RuntimeError(f"the temporary Prefect API server exited with status {server.returncode}"
+                                   f"{_last_line(log)}")  # fmt: skip
+            try:
+                if client.get(f"{url}/health", timeout=2).status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the temporary Prefect API server did not answer within {STARTUP_TIMEOUT_S} s"
+                                   f"{_last_line(log)}")  # fmt: skip
+            time.sleep(0.1)
+
+
 @contextmanager
 def temporary_api() -> Iterator[str | None]:
     """Within the block, Prefect talks to `PREFECT_API_URL` if set, else to a temporary server of this process's
-    own, stopped after the block (and signalled by the kernel if this process dies first). Yields the API's URL."""
+    own, stopped after the block (and signalled by the kernel if this process dies first). Yields the API's URL.
+    The server's own output goes to a temporary file (its shutdown when the command is interrupted is no concern of
+    the terminal's); its last line is told if it fails to start."""
     if PREFECT_API_URL.value():
         yield PREFECT_API_URL.value()
         return
@@ -70,47 +102,54 @@ def temporary_api() -> Iterator[str | None]:
     command = [sys.executable, "-m", "uvicorn", "--app-dir", str(Path(prefect.__file__).parent.parent), "--factory",
                "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(port),
                "--log-level", "error", "--lifespan", "on"]  # fmt: skip
-    server = subprocess.Popen(command, env=env, preexec_fn=_die_with_parent, stdin=subprocess.DEVNULL)
-    try:
-        deadline = time.monotonic() + STARTUP_TIMEOUT_S
-        with httpx.Client() as client:
-            while True:
-                if server.poll() is not None:
-                    raise RuntimeError(f"the temporary Prefect API server exited with status {server.returncode}")
-                try:
-                    if client.get(f"{url}/health", timeout=2).status_code == 200:
-                        break
-                except httpx.HTTPError:
-                    pass
-                if time.monotonic() > deadline:
-                    raise RuntimeError(f"the temporary Prefect API server did not answer within {STARTUP_TIMEOUT_S} s")
-                time.sleep(0.1)
-        with temporary_settings(updates={PREFECT_API_URL: url, PREFECT_UI_URL: ""}):  # the server has no UI
-            try:
-                yield url
-            finally:
-                _drain_prefect()
-    finally:
-        server.terminate()
+    with tempfile.TemporaryFile() as log:
+        server = subprocess.Popen(command, env=env, preexec_fn=_die_with_parent, stdin=subprocess.DEVNULL,
+                                  stdout=log, stderr=log)  # fmt: skip
         try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
+            _wait_until_healthy(server, url, log)
+            with temporary_settings(updates={PREFECT_API_URL: url, PREFECT_UI_URL: ""}):  # the server has no UI
+                try:
+                    yield url
+                finally:
+                    _drain_prefect()
+        finally:
+            server.terminate()
+            try:
+                server.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                server.kill()
+                server.wait()
+
+
+class _QuietFailures(logging.Filter):
+    """Keeps a failed task's or flow's report off the terminal (Prefect still sends it to its API): the command
+    says what went wrong in one line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        failed = record.levelno >= logging.ERROR or "Finished in state Failed" in record.getMessage()
+        return not (failed and record.name.startswith(("prefect.task_runs", "prefect.flow_runs")))
+
+
+def _quiet_prefect_failures() -> None:
+    """Add `_QuietFailures` to every terminal handler of Prefect's loggers and the root logger (which Prefect's
+    logging configuration, read on importing `prefect.main`, gives its console handler)."""
+    import prefect.main  # noqa: F401  (configures Prefect's logging, once)
+
+    loggers = [logging.getLogger(name) for name in logging.root.manager.loggerDict if name.startswith("prefect")]
+    for logger in [logging.root, *loggers]:
+        for handler in logger.handlers:
+            if isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler):
+                handler.addFilter(_QuietFailures())
 
 
 def run(main: Callable[[list[str] | None], object], prog: str) -> None:
-    """Run a command's `main` against `temporary_api`; an unexpected error is one line on stderr and exit status 1
-    (the traceback with `--debug`), an interrupt exit status 130."""
-    debug = "--debug" in sys.argv[1:]
-    try:
+    """Run a command's `main` against `temporary_api` with `dynplan.cli.run_command`: an error is one line on stderr
+    (the traceback with `--debug`), an interrupt "interrupted" and exit status 130."""
+    if "--debug" not in sys.argv[1:]:
+        _quiet_prefect_failures()
+
+    def with_api(argv: list[str] | None) -> object:
         with temporary_api():
-            main(None)
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted; run it again to resume", file=sys.stderr)
-        raise SystemExit(130) from None
-    except Exception as error:
-        if debug:
-            raise
-        print(f"{prog}: error: {type(error).__name__}: {error} (run with --debug for the traceback)", file=sys.stderr)
-        raise SystemExit(1) from None
+            return main(argv)
+
+    run_command(with_api, prog)

@@ -6,7 +6,6 @@ collection is finished by running the same command again.
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections import Counter
 
@@ -14,12 +13,14 @@ from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
+from dynplan.cli import CommandParser, bounded
+from dynplan.config import field_help
 from dynplan.data.collect import DEFAULT_RECORDING, CollectPlan, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
-from dynplan.files import check_output
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.cli import add_debug_option, run
-from flows.runners import dask_address, task_runner
+from flows.runners import add_dask_option, checked_dask_address, task_runner
 
 
 @task(name="record-episode", cache_policy=NO_CACHE)
@@ -44,18 +45,21 @@ def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int =
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m flows.collect", description=__doc__)
-    parser.add_argument("--episodes", type=int, default=10, help="number of episodes (default 10)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the first episode (default 0)")
-    parser.add_argument("--out", default="datasets/logs", help="folder for the logs (default datasets/logs)")
-    parser.add_argument("--level", type=int, default=DEFAULT_RECORDING.level, help="traffic level (default 6)")
+    parser = CommandParser(prog="python -m flows.collect", description=__doc__)
+    parser.add_argument("--episodes", type=bounded(CollectPlan, "episodes"), default=10,
+                        help=field_help(CollectPlan, "episodes"))  # fmt: skip
+    parser.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=0, help=field_help(CollectPlan, "seed"))
+    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/logs",
+                        help="folder for the logs (default datasets/logs)")  # fmt: skip
+    parser.add_argument("--level", type=bounded(RoadConfig, "level"), default=DEFAULT_RECORDING.level,
+                        help=field_help(RoadConfig, "level"))  # fmt: skip
     parser.add_argument(
         "--agent-speed",
-        type=float,
+        type=bounded(RoadConfig, "agent_speed"),
         default=DEFAULT_RECORDING.agent_speed,
         help="sets the episode length T (default 0.5: 407 frames, enough for both paper agents)",
     )
-    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_debug_option(parser)
     args = parser.parse_args(argv)
@@ -63,9 +67,10 @@ def main(argv: list[str] | None = None) -> dict:
         world = RoadConfig(level=args.level, agent_speed=args.agent_speed)
         CollectPlan(episodes=args.episodes, seed=args.seed)
         check_output(args.out, "--out", "folder")
+        address = checked_dask_address(args.dask_address)
     except ValueError as error:
         parser.error(str(error))
-    runner = task_runner(dask_address(args.dask_address))
+    runner = task_runner(address)
     summary = collect_episodes.with_options(task_runner=runner)(
         out=args.out, episodes=args.episodes, seed=args.seed, config=world.model_dump()
     )

@@ -30,6 +30,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from dynplan.cli import CommandParser
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
 from dynplan.evaluation.agent import AgentSpec
@@ -38,6 +39,7 @@ from dynplan.evaluation.table import aggregate, load_results
 from dynplan.files import atomic_path, write_bytes_atomic
 from dynplan.models import checkpoint as checkpoints
 from dynplan.models import pretrained_path
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset
 from dynplan.pipeline.report import StageRecord, checkpoint_record, draw_figures, render_report, write_report
 from flows.artifacts import publish_report
@@ -45,7 +47,7 @@ from flows.build_datasets import build_datasets
 from flows.cli import add_debug_option, run
 from flows.collect import collect_episodes
 from flows.evaluate import evaluate_planner
-from flows.runners import dask_address, task_runner
+from flows.runners import add_dask_option, checked_dask_address, task_runner
 from flows.train import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
 
 
@@ -168,20 +170,21 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
 
 
 def main(argv: list[str] | None = None) -> str:
-    parser = argparse.ArgumentParser(prog="python -m flows.collect_train_eval", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(prog="python -m flows.collect_train_eval", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--preset", default="quick", choices=sorted(PIPELINE_PRESETS), help="run scale")
-    parser.add_argument("--out", default="datasets", help="output folder (default: datasets)")
-    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
+    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets",
+                        help="output folder (default: datasets)")  # fmt: skip
+    add_dask_option(parser)
     add_debug_option(parser)
     args = parser.parse_args(argv)
     try:
-        if Path(args.out).exists() and not Path(args.out).is_dir():
-            raise ValueError(f"--out {args.out}: exists and is not a folder")
+        check_output(args.out, "--out", "folder")
+        address = checked_dask_address(args.dask_address)
     except (ConfigError, ValueError) as error:
         parser.error(str(error))
     command = shlex.join(["python", "-m", "flows.collect_train_eval", *(sys.argv[1:] if argv is None else argv)])
-    report = collect_train_eval(preset=args.preset, out=args.out, dask_address=dask_address(args.dask_address),
+    report = collect_train_eval(preset=args.preset, out=args.out, dask_address=address,
                                 command=command)  # fmt: skip
     print(json.dumps({"report": report}))
     return report

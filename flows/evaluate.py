@@ -19,28 +19,39 @@ import os
 import shlex
 import sys
 from dataclasses import asdict
+from pathlib import Path
 
 import torch
 from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
+from dynplan.cli import Bounded, CommandParser, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.evaluation.agent import AgentSpec
-from dynplan.evaluation.cases import EVAL_SEED_START, TABLE1, VALIDATION_SEED_START, Case, CasePlan
+from dynplan.evaluation.cases import (
+    AGENT_SPEEDS,
+    EVAL_SEED_START,
+    ROLLOUT_STEPS,
+    TABLE1,
+    VALIDATION_SEED_START,
+    Case,
+    CasePlan,
+)
 from dynplan.evaluation.protocol import pending, run_cases
 from dynplan.evaluation.provenance import begin_run
-from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name
+from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name, check_store
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.registry import WORLD_MODELS
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.artifacts import ProgressArtifact, publish_table1
 from flows.cli import add_debug_option, run
 from flows.collect import collect_episodes
-from flows.runners import dask_address, task_runner
+from flows.runners import add_dask_option, checked_dask_address, task_runner
 
 DEFAULT_COMMAND = "python -m flows.evaluate"
 RESULTS_DIR = "datasets/results"
@@ -115,34 +126,40 @@ def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = Non
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m flows.evaluate", description=__doc__)
+    parser = CommandParser(prog="python -m flows.evaluate", description=__doc__)
     parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=list(TECHNIQUES),
                         metavar="TECHNIQUE", help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
                         + " (default: oracle zero random)")  # fmt: skip
     parser.add_argument("--models", nargs="+", default=["default"], choices=list(WORLD_MODELS),
                         help="world-model configurations for the learned techniques ("
                         + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model) + ")")  # fmt: skip
-    for name, flag in (("agent_speeds", "--agent-speeds"), ("rollout_steps", "--rollout-steps")):
-        field = CasePlan.model_fields[name]
-        parser.add_argument(flag, nargs="+", type=type(field.default[0]), default=list(field.default),
-                            help=field_help(CasePlan, name, " ".join(map(str, field.default))))  # fmt: skip
+    parser.add_argument("--agent-speeds", nargs="+", type=float, choices=AGENT_SPEEDS, default=list(AGENT_SPEEDS),
+                        help=field_help(CasePlan, "agent_speeds", " ".join(map(str, AGENT_SPEEDS))))  # fmt: skip
+    parser.add_argument("--rollout-steps", nargs="+", type=bounded(AgentSpec, "rollout_steps"),
+                        default=list(ROLLOUT_STEPS),
+                        help=field_help(CasePlan, "rollout_steps", " ".join(map(str, ROLLOUT_STEPS))))  # fmt: skip
     for name, flag in (("episodes", "--episodes"), ("first_seed", "--first-seed")):
         default = CasePlan.model_fields[name].default
-        parser.add_argument(flag, type=int, default=default, help=field_help(CasePlan, name))
-    parser.add_argument("--playouts", type=int, default=100, help=field_help(AgentSpec, "playouts"))
-    parser.add_argument("--log-dir", default="datasets/eval_logs", help="evaluation logs (recorded if missing)")
-    parser.add_argument("--results-dir", default=RESULTS_DIR, help="the results store (runs and Table 1)")
+        parser.add_argument(flag, type=bounded(CasePlan, name), default=default, help=field_help(CasePlan, name))
+    parser.add_argument("--playouts", type=bounded(AgentSpec, "playouts"), default=100,
+                        help=field_help(AgentSpec, "playouts"))  # fmt: skip
+    parser.add_argument("--log-dir", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/eval_logs",
+                        help="evaluation logs (recorded if missing)")  # fmt: skip
+    parser.add_argument("--results-dir", type=PathArgument(PathKind.OUTPUT_FOLDER), default=RESULTS_DIR,
+                        help="the results store (runs and Table 1)")  # fmt: skip
     parser.add_argument("--run", default=EVALUATION_RUN, help=f"the run to play into (default {EVALUATION_RUN!r}, "
                         "Table 1's; name another for validation or a candidate)")  # fmt: skip
-    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
-    parser.add_argument("--model-dir", help=field_help(AgentSpec, "model_dir"))
-    for name, info in Caution.model_fields.items():  # the caution's fields, types, ranges and words
+    add_dask_option(parser)
+    parser.add_argument(
+        "--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), help=field_help(AgentSpec, "model_dir")
+    )
+    for name in Caution.model_fields:  # the caution's fields, types, ranges and words
         own = "each configuration's own"
-        parser.add_argument(f"--{name}", type=info.annotation, help=field_help(Caution, name, own))
-    parser.add_argument("--workers", type=int, help="batches played at once locally, in [1, 256] (default: one per "
-                        "core)")  # fmt: skip
-    parser.add_argument("--batch", type=int, default=BATCH, help=f"recorded worlds per lockstep batch, in [1, 10000] "
-                        f"(default {BATCH})")  # fmt: skip
+        parser.add_argument(f"--{name}", type=bounded(Caution, name), help=field_help(Caution, name, own))
+    parser.add_argument("--workers", type=Bounded(int, 1, 256),
+                        help="batches played at once locally, in [1, 256] (default: one per core)")  # fmt: skip
+    parser.add_argument("--batch", type=Bounded(int, 1, 10_000), default=BATCH,
+                        help=f"recorded worlds per lockstep batch, in [1, 10000] (default {BATCH})")  # fmt: skip
     parser.add_argument("--table1", action="store_true", help="play the complete Table 1: "
                         + "; ".join(f"{speed * 2:g}x: {' '.join(names)}" for speed, names in TABLE1.items())
                         + f" (learned ones with {' and '.join(WORLD_MODELS)}); instead of --techniques, --models "
@@ -188,16 +205,20 @@ def main(argv: list[str] | None = None) -> list[dict]:
     if args.first_seed != EVAL_SEED_START and args.run == EVALUATION_RUN:
         parser.error(f"--first-seed={args.first_seed} needs its own --run: the run {EVALUATION_RUN!r} holds the "
                      f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
-    if args.workers is not None and not 1 <= args.workers <= 256:
-        parser.error(f"--workers={args.workers} is invalid; valid range [1, 256]")
-    if not 1 <= args.batch <= 10_000:
-        parser.error(f"--batch={args.batch} is invalid; valid range [1, 10000]")
+    try:
+        check_output(args.log_dir, "--log-dir", "folder")
+        check_output(args.results_dir, "--results-dir", "folder", inputs=(args.log_dir,))
+        if Path(args.results_dir).is_dir():
+            check_store(args.results_dir)  # every run through its schema: a damaged one is named now, not mid-run
+        address = checked_dask_address(args.dask_address)
+    except ValueError as error:
+        parser.error(str(error))
     plan, agent = _specs(parser, args)
     command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
-    if not dask_address(args.dask_address):  # the local pool's episodes share the cores; more threads only contend
+    if not address:  # the local pool's episodes share the cores; more threads only contend
         cores = os.cpu_count() or 1
         torch.set_num_threads(max(1, cores // (args.workers or cores)))
-    runner = task_runner(dask_address(args.dask_address), args.workers)
+    runner = task_runner(address, args.workers)
     rows = evaluate_planner.with_options(task_runner=runner)(
         plan=plan,
         agent=agent,

@@ -25,25 +25,29 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
+import warnings
 from collections.abc import Iterable, Sequence
 
 import numpy as np
 
+from dynplan.cli import Bounded, CommandParser, bounded, run_command
+from dynplan.data.collect import CollectPlan
 from dynplan.env.agent import ACTION_ANGLES_DEG
 from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.agent import AgentSpec
-from dynplan.evaluation.cases import VALIDATION_SEED_START
+from dynplan.evaluation.cases import AGENT_SPEEDS, VALIDATION_SEED_START
 from dynplan.evaluation.protocol import world_agent
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra
 from dynplan.files import atomic_path
 from dynplan.logs.live import DEFAULT_PORT, LiveView
-from dynplan.logs.reader import LogError, read_episode_log
+from dynplan.logs.reader import LogError
+from dynplan.logs.recording import read_recorded_log
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.registry import WORLD_MODELS
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.play import HORIZONS, PlayState
 from dynplan.render import error_image, upscale
 
@@ -66,7 +70,7 @@ def build_state(seed: int | None = None, log: str | None = None, agent_speed: fl
     `model` (its mid-point frames, no caution: the frames as the model predicts them), the planner of
     `technique_name` at horizon k."""
     if log is not None:
-        world = read_episode_log(log).world()
+        world = read_recorded_log(log).world()
     else:
         world = generate_world(RoadConfig(agent_speed=agent_speed), VALIDATION_SEED_START if seed is None else seed)
     imagined = None
@@ -187,13 +191,16 @@ def play(state: PlayState, scale: int = 8, fps: float = 8.0, planner_plays: bool
     return state
 
 
-def main(argv: Sequence[str] | None = None) -> PlayState:
-    parser = argparse.ArgumentParser(prog="python -m flows.play", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+def _parser() -> CommandParser:
+    parser = CommandParser(prog="python -m flows.play", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     source = parser.add_mutually_exclusive_group()
-    source.add_argument("--seed", type=int, default=None, help="play the world of this seed (default 2,000,000)")
-    source.add_argument("--log", default=None, help="play the world recorded in this episode log (.mcap)")
-    parser.add_argument("--agent-speed", type=float, default=1.0, help="1.0 is the 2x agent, 0.5 the 1x")
+    source.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=None,
+                        help="play the world of this seed (default 2,000,000)")  # fmt: skip
+    source.add_argument("--log", type=PathArgument(PathKind.LOG), default=None,
+                        help="play the world recorded in this episode log (.mcap)")  # fmt: skip
+    parser.add_argument("--agent-speed", type=float, default=1.0, choices=AGENT_SPEEDS,
+                        help="1.0 is the 2x agent, 0.5 the 1x")  # fmt: skip
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS),
                         help="the world model of the imagination and of a learned planner")  # fmt: skip
     parser.add_argument("--technique", default="oracle", choices=[n for n, t in TECHNIQUES.items() if t.search],
@@ -201,20 +208,34 @@ def main(argv: Sequence[str] | None = None) -> PlayState:
     parser.add_argument("--watch", action="store_true", help="start with the planner playing")
     parser.add_argument("-k", "--rollout-steps", type=int, default=3, choices=HORIZONS, help="the planner's horizon")
     parser.add_argument("--no-imagination", action="store_true", help="do not load a world model for the imagination")
-    parser.add_argument("--record", default=None, help="write what was played to this replay log (.mcap) at the end")
+    parser.add_argument("--record", type=PathArgument(PathKind.OUTPUT_FILE), default=None,
+                        help="write what was played to this replay log (.mcap) at the end")  # fmt: skip
     parser.add_argument("--scale", type=int, default=8, choices=range(1, 17), metavar="1..16", help="pixels per cell")
-    parser.add_argument("--fps", type=float, default=8.0, help="frames per second while the planner plays")
+    parser.add_argument("--fps", type=Bounded(float, 0.01, 1000.0), default=8.0,
+                        help="frames per second while the planner plays")  # fmt: skip
     parser.add_argument("--live", action="store_true",
                         help="also serve every step over the Foxglove WebSocket protocol (the live extra)")  # fmt: skip
-    parser.add_argument("--live-port", type=int, default=DEFAULT_PORT, help="the live view's port (0: any free one)")
-    parser.add_argument("--screenshot", default=None, help="save the window's last picture to this PNG at the end")
+    parser.add_argument("--live-port", type=Bounded(int, 0, 65535), default=DEFAULT_PORT,
+                        help="the live view's port (0: any free one)")  # fmt: skip
+    parser.add_argument("--screenshot", type=PathArgument(PathKind.OUTPUT_FILE), default=None,
+                        help="save the window's last picture to this PNG at the end")  # fmt: skip
     parser.add_argument("--script", default=None,
                         help="key names separated by commas, one per frame, then quit (headless runs)")  # fmt: skip
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> PlayState:
+    parser = _parser()
     args = parser.parse_args(argv)
-    if not args.fps > 0:
-        parser.error(f"--fps must be > 0, got {args.fps}")
+    inputs = () if args.log is None else (args.log,)
+    for option, path in (("--record", args.record), ("--screenshot", args.screenshot)):
+        if path is not None:
+            try:
+                check_output(path, option, "file", inputs=inputs)
+            except ValueError as error:
+                parser.error(str(error))
     try:
-        import pygame  # noqa: F401
+        import pygame
     except ImportError:
         parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
     try:
@@ -223,6 +244,13 @@ def main(argv: Sequence[str] | None = None) -> PlayState:
     except (LogError, CheckpointError, ValueError) as error:
         parser.exit(2, f"python -m flows.play: error: {error}\n")
     script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
+    for key in script or ():
+        try:
+            with warnings.catch_warnings():  # the names are pygame's own before its display is initialised
+                warnings.simplefilter("ignore")
+                pygame.key.key_code(key)
+        except ValueError:
+            parser.error(f"--script: {key!r} is not a key name (e.g. up, left, space, p, escape)")
     if not args.live:
         return play(state, args.scale, args.fps, args.watch, script, args.record, screenshot=args.screenshot)
     try:
@@ -236,4 +264,4 @@ def main(argv: Sequence[str] | None = None) -> PlayState:
 
 if __name__ == "__main__":
     os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-    main(sys.argv[1:])
+    run_command(main, "python -m flows.play")

@@ -8,21 +8,22 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from contextlib import nullcontext
 from pathlib import Path
 
 from prefect import flow
 
+from dynplan.cli import Bounded, CommandParser, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.evaluation.agent import AgentSpec
+from dynplan.evaluation.cases import AGENT_SPEEDS
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra, require
-from dynplan.files import check_output
 from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.models.registry import WORLD_MODELS
+from dynplan.paths import PathArgument, PathKind, check_output
 from flows.cli import add_debug_option, run
 
 
@@ -45,8 +46,8 @@ def replay_episode(log: str, agent: AgentSpec | None = None, agent_speed: float 
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m flows.replay", description=__doc__)
-    parser.add_argument("log", help="episode log (.mcap) from flows.collect")
+    parser = CommandParser(prog="python -m flows.replay", description=__doc__)
+    parser.add_argument("log", type=PathArgument(PathKind.LOG), help="episode log (.mcap) from flows.collect")
     parser.add_argument(
         "--planner",
         default="oracle",
@@ -56,25 +57,33 @@ def _parser() -> argparse.ArgumentParser:
         + "), or model: the learned model with --samples and --futures (default oracle)",
     )
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS), help="learned model configuration")
-    for name in ("samples", "futures", "rollout_steps", "playouts", "device"):
-        field = AgentSpec.model_fields[name]
-        parser.add_argument(f"--{name.replace('_', '-')}", type=type(field.default), default=field.default,
-                            help=field_help(AgentSpec, name))  # fmt: skip
-    parser.add_argument("--agent-speed", type=float, default=1.0, help="1.0 (the paper's 2×) or 0.5 (1×)")
+    for name in ("samples", "futures", "rollout_steps", "playouts"):
+        parser.add_argument(f"--{name.replace('_', '-')}", type=bounded(AgentSpec, name),
+                            default=AgentSpec.model_fields[name].default, help=field_help(AgentSpec, name))  # fmt: skip
+    parser.add_argument("--device", default="cpu", help=field_help(AgentSpec, "device"))
+    parser.add_argument("--agent-speed", type=float, default=1.0, choices=AGENT_SPEEDS,
+                        help="1.0 (the paper's 2×) or 0.5 (1×)")  # fmt: skip
     parser.add_argument(
-        "--out", help="replay MCAP to write (default: ../replays/EPISODE.replay-PLANNER.mcap from the log)"
+        "--out",
+        type=PathArgument(PathKind.OUTPUT_FILE),
+        help="replay MCAP to write (default: ../replays/EPISODE.replay-PLANNER.mcap from the log)",
     )
-    parser.add_argument("--gif", help="also write a GIF: observed | true future | predicted | error")
-    parser.add_argument("--model-dir", help=field_help(AgentSpec, "model_dir"))
-    parser.add_argument("--seed", type=int, default=0, help=field_help(AgentSpec, "seed"))
+    parser.add_argument("--gif", type=PathArgument(PathKind.OUTPUT_FILE),
+                        help="also write a GIF: observed | true future | predicted | error")  # fmt: skip
+    parser.add_argument(
+        "--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), help=field_help(AgentSpec, "model_dir")
+    )
+    parser.add_argument("--seed", type=bounded(AgentSpec, "seed"), default=0, help=field_help(AgentSpec, "seed"))
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     parser.add_argument("--live", action="store_true",
                         help="also serve the episode over the Foxglove WebSocket protocol while it is planned "
                              "(the layout dynplan/logs/layouts/replay.json shows it; the live extra)")  # fmt: skip
-    parser.add_argument("--live-port", type=int, default=DEFAULT_PORT, help="the live view's port (0: any free one)")
-    parser.add_argument("--live-wait", type=float, default=30.0,
+    parser.add_argument("--live-port", type=Bounded(int, 0, 65535), default=DEFAULT_PORT,
+                        help="the live view's port (0: any free one)")  # fmt: skip
+    parser.add_argument("--live-wait", type=Bounded(float, 0.0, 86400.0), default=30.0,
                         help="seconds to wait for a viewer to subscribe before it starts (default 30)")  # fmt: skip
-    parser.add_argument("--live-fps", type=float, default=8.0, help="decisions shown per second at most (default 8)")
+    parser.add_argument("--live-fps", type=Bounded(float, 0.01, 1000.0), default=8.0,
+                        help="decisions shown per second at most (default 8)")  # fmt: skip
     add_debug_option(parser)
     return parser
 
@@ -87,15 +96,12 @@ def _agent(args: argparse.Namespace) -> AgentSpec:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    args = _parser().parse_args(argv)
+    parser = _parser()
+    args = parser.parse_args(argv)
     try:  # fail fast, with one line, before any flow machinery starts
         agent = _agent(args)
         out = args.out or str(default_outputs(args.log, agent))
         if args.live:
-            if not 0 <= args.live_port < 65536:
-                raise ValueError(f"--live-port={args.live_port} is invalid; valid range [0, 65535]")
-            if not (args.live_fps > 0 and args.live_wait >= 0):
-                raise ValueError(f"--live-fps must be > 0 and --live-wait >= 0, got {args.live_fps}, {args.live_wait}")
             require("foxglove", "live", "--live")
         check_output(out, "--out", "file", inputs=(args.log,))
         if args.gif:
@@ -104,8 +110,7 @@ def main(argv: list[str] | None = None) -> dict:
             check_output(args.gif, "--gif", "file", inputs=(args.log,))
         prepare(args.log, agent, args.agent_speed)
     except (LogError, ConfigError, ValueError, MissingExtra) as error:
-        print(f"error: {error}", file=sys.stderr)
-        raise SystemExit(2) from None
+        parser.error(str(error))
     result = replay_episode(args.log, agent, args.agent_speed, out, args.gif, args.live_port if args.live else None,
                             args.live_wait, args.live_fps)  # fmt: skip
     if args.json:

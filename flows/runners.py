@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import argparse
 import os
+import re
+import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 
@@ -36,3 +39,31 @@ def dask_scheduler(address: str | None) -> Iterator[None]:
 
     with Client(address):
         yield
+
+
+def add_dask_option(parser: argparse.ArgumentParser) -> None:
+    """The `--dask-address` option."""
+    parser.add_argument(
+        "--dask-address", help=f"Dask scheduler to run on, tcp://HOST:PORT (default: ${DASK_ADDRESS_ENV}, else local)"
+    )
+
+
+def checked_dask_address(cli_value: str | None = None, timeout_s: float = 5.0) -> str | None:
+    """`dask_address(cli_value)`, checked before any work: a ValueError naming the address if it is not
+    `[tcp://]HOST:PORT` or nothing answers there within `timeout_s`."""
+    if cli_value is not None and not cli_value.strip():
+        raise ValueError("--dask-address '': is empty; give tcp://HOST:PORT, or leave the option out to run locally")
+    address = dask_address(cli_value)
+    if not address:
+        return None
+    source = "--dask-address" if cli_value else f"${DASK_ADDRESS_ENV}"
+    match = re.fullmatch(r"(?:tcp://)?(\[[^\]]+\]|[^:/\s]+):(\d{1,5})", address)
+    if match is None or not 0 < int(match.group(2)) < 65536:
+        raise ValueError(f"{source} {address!r}: not a Dask scheduler address; give tcp://HOST:PORT")
+    host, port = match.group(1).strip("[]"), int(match.group(2))
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except OSError as error:
+        reason = error.strerror or type(error).__name__
+        raise ValueError(f"{source} {address}: no Dask scheduler answers there ({reason})") from None
+    return address

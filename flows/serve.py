@@ -17,9 +17,11 @@ import argparse
 
 from prefect import serve
 
+from dynplan.cli import Bounded, CommandParser, run_command
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.pipeline.presets import PIPELINE_PRESETS
 from flows.collect_train_eval import collect_train_eval
-from flows.runners import dask_address
+from flows.runners import add_dask_option, checked_dask_address
 
 
 def deployments(out: str, address: str | None, presets: list[str]) -> list:
@@ -36,15 +38,21 @@ def deployments(out: str, address: str | None, presets: list[str]) -> list:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m flows.serve", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--out", default="datasets", help="output folder of the runs (default: datasets)")
+    parser = CommandParser(prog="python -m flows.serve", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets",
+                        help="output folder of the runs (default: datasets)")  # fmt: skip
     parser.add_argument("--presets", nargs="+", default=sorted(PIPELINE_PRESETS), choices=sorted(PIPELINE_PRESETS))
-    parser.add_argument("--dask-address", help="Dask scheduler to run on (default: $DYNPLAN_DASK_ADDRESS, else local)")
-    parser.add_argument("--limit", type=int, default=1, help="flow runs executed at once (default 1)")
+    add_dask_option(parser)
+    parser.add_argument("--limit", type=Bounded(int, 1, 256), default=1, help="flow runs executed at once (default 1)")
     args = parser.parse_args(argv)
-    serve(*deployments(args.out, dask_address(args.dask_address), args.presets), limit=args.limit)
+    try:
+        check_output(args.out, "--out", "folder")
+        address = checked_dask_address(args.dask_address)
+    except ValueError as error:
+        parser.error(str(error))
+    serve(*deployments(args.out, address, args.presets), limit=args.limit)
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m flows.serve")

@@ -19,12 +19,16 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.context import TaskRunContext
 
-from dynplan.config import ConfigError
+from dynplan.cli import CommandParser, bounded
+from dynplan.config import ConfigError, field_help
+from dynplan.data.metadata import metadata_problem
+from dynplan.data.store import store_problem
 from dynplan.models import checkpoint
 from dynplan.models.checkpoint import CheckpointError, digest
 from dynplan.models.pixelcnn import PixelCNNConfig
 from dynplan.models.registry import WORLD_MODELS, world_model_spec
 from dynplan.models.vqvae import VQVAEConfig
+from dynplan.paths import PathArgument, PathKind, check_input, check_output
 from dynplan.training.codes import build_codes
 from dynplan.training.loop import TrainBudget
 from dynplan.training.pixelcnn import train_pixelcnn
@@ -142,52 +146,92 @@ def parse_overrides(items: list[str]) -> dict:
     return overrides
 
 
-def main(argv: list[str] | None = None) -> str:
-    parser = argparse.ArgumentParser(prog="python -m flows.train", description=__doc__)
+def check_init_from(path: str, stage: str, config: dict) -> None:
+    """`--init-from`, checked before any flow starts, one line naming it: a readable checkpoint of `stage` whose
+    tensors are its recorded configuration's, finite, as its model card says, and able to start a run of `config`
+    (`checkpoint.warm_weights`)."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"--init-from {path}: no such checkpoint")
+    try:
+        state = checkpoint.verify(path, stage)
+        checkpoint.warm_weights(path, state, stage, checkpoint.module_shapes(stage, config))
+    except CheckpointError as error:
+        raise CheckpointError(f"--init-from {error}") from None
+
+
+#: The frames store a stage trains on unless --store says otherwise.
+STORE = "datasets/frames.zarr"
+
+
+def _parser() -> CommandParser:
+    parser = CommandParser(prog="python -m flows.train", description=__doc__)
     parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
-    parser.add_argument("--store", default="datasets/frames.zarr", help="frames store from flows.build_datasets")
+    parser.add_argument("--store", type=PathArgument(PathKind.STORE),
+                        help=f"frames store from flows.build_datasets (default {STORE})")  # fmt: skip
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS), help="world-model configuration")
-    parser.add_argument("--out", default="datasets/checkpoints", help="folder for training runs")
-    parser.add_argument("--epochs", type=int, default=TrainBudget().epochs)
-    parser.add_argument("--steps-per-epoch", type=int, default=TrainBudget().steps_per_epoch)
-    parser.add_argument("--max-minutes", type=float, help="stop after this long (resumable)")
-    parser.add_argument("--threads", type=int, help="torch threads (default: all cores)")
+    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/checkpoints",
+                        help="folder for training runs")  # fmt: skip
+    for name in ("epochs", "steps_per_epoch", "max_minutes", "threads"):
+        default = TrainBudget.model_fields[name].default
+        parser.add_argument(f"--{name.replace('_', '-')}", type=bounded(TrainBudget, name), default=default,
+                            help=field_help(TrainBudget, name))  # fmt: skip
     parser.add_argument("--device", help="torch device to train on, e.g. cuda (default: the CPU); same run folder")
-    parser.add_argument("--init-from", metavar="CHECKPOINT", help="start from these weights (same architecture)")
+    parser.add_argument("--init-from", type=PathArgument(PathKind.WEIGHTS), metavar="CHECKPOINT",
+                        help="start from these weights (same architecture)")  # fmt: skip
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
     parser.add_argument("--codes", help="pixelcnn: the store's code array to train on (default: codes_<model>)")
-    parser.add_argument("--tensorboard", metavar="DIR", help="also write TensorBoard scalars and images to "
-                        f"DIR/<run folder>/ (needs the tensorboard extra: {INSTALL})")  # fmt: skip
+    parser.add_argument("--tensorboard", type=PathArgument(PathKind.OUTPUT_FOLDER), metavar="DIR",
+                        help=f"also write TensorBoard scalars and images to DIR/<run folder>/ (needs the tensorboard "
+                        f"extra: {INSTALL})")  # fmt: skip
     add_debug_option(parser)
-    args = parser.parse_args(argv)
-    codes = args.codes or f"codes_{args.model}"
+    return parser
+
+
+def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
+    """The run's (config overrides, budget), every value and path checked before any flow starts; an error is a
+    ValueError naming the bad one."""
+    overrides = parse_overrides(args.set)
+    budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
+                         threads=args.threads, init_from=args.init_from, device=args.device).model_dump()  # fmt: skip
+    preset = world_model_spec(args.model)
     try:
-        overrides = parse_overrides(args.set)
-        budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
-                             threads=args.threads, init_from=args.init_from,
-                             device=args.device).model_dump()  # fmt: skip
         if args.stage == "vqvae":
-            VQVAEConfig(**{**world_model_spec(args.model).tokenizer.model_dump(), **overrides})
+            config = VQVAEConfig(**{**preset.tokenizer.model_dump(), **overrides})
         else:
-            PixelCNNConfig(**{**world_model_spec(args.model).prior.model_dump(), **overrides})
-        if args.init_from:
-            if not Path(args.init_from).is_file():
-                raise FileNotFoundError(f"--init-from {args.init_from}: no such checkpoint")
-            checkpoint.load(args.init_from, args.stage)  # truncated, foreign or of the other stage: one line
-        if args.tensorboard:
-            check_available()
-        if not Path(args.store).exists():
-            raise FileNotFoundError(f"{args.store}: no such store (build it with python -m flows.build_datasets)")
-        if args.stage == "pixelcnn" and codes not in zarr.open_group(args.store, mode="r", use_consolidated=False):
-            raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
-                                    f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
+            config = PixelCNNConfig(**{**preset.prior.model_dump(), **overrides})
+    except ConfigError as error:  # the preset is valid: an override is not
+        raise ConfigError(f"--set: {error}") from None
+    if args.init_from:
+        check_init_from(args.init_from, args.stage, config.model_dump())
+    inputs = (args.store, *([args.init_from] if args.init_from else []))
+    check_output(args.out, "--out", "folder", inputs=inputs)
+    if args.tensorboard:
+        check_output(args.tensorboard, "--tensorboard", "folder", inputs=inputs)
+        check_available()
+    check_input(args.store, "--store", PathKind.STORE)
+    problem = store_problem(args.store) or metadata_problem(args.store)
+    if problem:
+        raise ValueError(f"--store {problem}")
+    codes = args.codes or f"codes_{args.model}"
+    if args.stage == "pixelcnn" and codes not in zarr.open_group(args.store, mode="r", use_consolidated=False):
+        raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
+                                f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
+    return overrides, budget
+
+
+def main(argv: list[str] | None = None) -> str:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    args.store = args.store or STORE  # checked with the rest, after the values that need no store
+    try:
+        overrides, budget = _checked(args)
     except (ConfigError, ValueError, FileNotFoundError, CheckpointError, MissingExtra) as error:
         parser.error(str(error))
+    common = {"store": args.store, "model": args.model, "out": args.out, "budget": budget, "overrides": overrides,
+              "tensorboard": args.tensorboard}  # fmt: skip
     if args.stage == "vqvae":
-        return train_vqvae_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides,
-                                tensorboard=args.tensorboard)  # fmt: skip
-    return train_pixelcnn_flow(store=args.store, model=args.model, out=args.out, budget=budget, overrides=overrides,
-                               codes=codes, tensorboard=args.tensorboard)  # fmt: skip
+        return train_vqvae_flow(**common)
+    return train_pixelcnn_flow(**common, codes=args.codes or f"codes_{args.model}")
 
 
 if __name__ == "__main__":

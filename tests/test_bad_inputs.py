@@ -17,9 +17,9 @@ import flows.evaluate
 import flows.replay
 import flows.train
 from dynplan.data.collect import log_path, record_episode, stale_temporaries
-from dynplan.files import check_output
 from dynplan.logs import read_episode_log
 from dynplan.models.checkpoint import pretrained_path
+from dynplan.paths import check_output
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -76,6 +76,8 @@ CASES = [
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/a_file/x.mcap"], "is a file, so nothing can"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/r.mcap", "--seed", "-1"],
      "seed=-1 is invalid"),
+    ("replay", ["{root}/logs/episode_0000000003.mcap", "--agent-speed", "0.7"],
+     "--agent-speed invalid choice: 0.7 (choose from 1.0, 0.5)"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/r.mcap", "--planner", "mid", "--model-dir",
                 "{root}/things"], "no world model checkpoints at {root}/things/default/vqvae.pt"),
     ("train", ["vqvae", "--set", "codebook_size=notjson"],
@@ -88,8 +90,8 @@ CASES = [
     ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/cut"],
      "--model-dir {root}/cut: {root}/cut/default/pixelcnn.pt: not a readable checkpoint"),
     ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/pair"],
-     "{root}/pair/default/pixelcnn.pt: predicts 4096 code values, but the tokenizer {root}/pair/default/vqvae.pt has "
-     "512: they are not one world model"),
+     "{root}/pair/default/vqvae.pt: its configuration is 'paper''s, not 'default''s (it does not match the model "
+     "card vqvae-default.json; it is a copy of vqvae-paper.pt)"),
     ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/kinds"],
      "{root}/kinds/default/pixelcnn.pt: holds a 'vqvae' checkpoint, expected 'pixelcnn'"),
     ("evaluate", ["--techniques", "samples5", "--model-dir", "{root}/things"],

@@ -74,7 +74,7 @@ def test_build_datasets_flow_matches_the_library_and_reruns_idle(tmp_path, recor
     [
         (["flows.collect", "--episodes", "0"], "episodes=0 is invalid"),
         (["flows.collect", "--level", "-3"], "level=-3 is invalid"),
-        (["flows.collect", "--agent-speed", "0"], "agent_speed=0.0 is invalid"),
+        (["flows.collect", "--agent-speed", "0"], "--agent-speed=0 is invalid; valid range (0.0, 8.0]"),
         (["flows.build_datasets", "no/such/logs"], "no/such/logs: no such folder of episode logs"),
     ],
 )

@@ -187,8 +187,8 @@ def test_replay_command_line(tmp_path, eval_logs):
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     assert result["outcome"] in {"goal", "timeout", "death"} and result["planner"] == "zero"
     assert {"steps", "decision_ms_median"} <= set(result) and out.is_file()
-    for args, text in [([str(tmp_path / "nope.mcap")], "nope.mcap: no such file"),
-                       ([str(log), "--rollout-steps", "0"], "rollout_steps=0 is invalid"),
+    for args, text in [([str(tmp_path / "nope.mcap")], "nope.mcap: no such episode log"),
+                       ([str(log), "--rollout-steps", "0"], "--rollout-steps=0 is invalid; valid range [1, 64]"),
                        ([str(log), "--planner", "psychic"], "invalid choice: 'psychic'")]:  # fmt: skip
         bad = subprocess.run([sys.executable, "-m", "flows.replay", *args], cwd=ROOT, capture_output=True, text=True)
         assert bad.returncode == 2 and text in bad.stderr
@@ -315,11 +315,11 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
     [
         (
             ["--occupancy", "1.5"],
-            "Caution: occupancy=1.5 is invalid (input should be less than 1); valid range [0.0, 1.0)",
+            "--occupancy=1.5 is invalid; valid range [0.0, 1.0)",
         ),
         (
             ["--margin", "5"],
-            "Caution: margin=5 is invalid (input should be less than or equal to 4); valid range [0, 4]",
+            "--margin=5 is invalid; valid range [0, 4]",
         ),
         (
             ["--occupancy", "0.1", "--techniques", "mid", "--models", "paper"],

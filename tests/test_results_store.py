@@ -98,7 +98,7 @@ def test_a_damaged_row_names_the_file_and_line(tmp_path):
     run.append(row(EVAL_SEED_START))
     with open(run.episodes_path, "ab") as f:
         f.write(b"{not json\n")
-    with pytest.raises(StoreError, match=r"runs/evaluation/episodes.jsonl: line 2 is not a JSON row"):
+    with pytest.raises(StoreError, match=r"runs/evaluation/episodes.jsonl:2: not a JSON row"):
         Run(tmp_path).rows()
     (run.manifest_path).write_text("{}")
     with pytest.raises(StoreError, match=r"manifest.json: not a dynplan-run/1 manifest"):

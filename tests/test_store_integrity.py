@@ -1,6 +1,7 @@
 """The frames store under damage and concurrency: every flipped byte is found, named and repaired from the logs;
 plain Zarr readers never see an unfinished append; two conversions into one store both finish correctly."""
 
+import json
 import shutil
 import subprocess
 import sys
@@ -13,7 +14,7 @@ import xarray as xr
 import zarr
 
 from dynplan.data.build import build_frame_store_from_logs
-from dynplan.data.chunks import ChunkError
+from dynplan.data.chunks import COMPRESSORS, ChunkError
 from dynplan.data.datasets import FrameDataset
 from dynplan.data.store import ARRAYS, fingerprint, list_logs, lock_path
 from dynplan.data.verify import verify_store
@@ -131,7 +132,7 @@ def test_verify_command_reports_then_repairs(store, recorded_logs):
     found = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert found.returncode == 1 and "Traceback" not in found.stderr
     assert "array 'goal', chunk c/0/0/0 (episode 0, seed 0, log episode_0000000000.mcap;" in found.stderr
-    assert "give the folder of its logs to repair them" in found.stderr
+    assert "give the folder of its logs to repair what they determine" in found.stderr
     fixed = subprocess.run([*command, str(recorded_logs)], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert fixed.returncode == 0, fixed.stderr
     assert "1 damaged, 1 repaired" in fixed.stdout
@@ -206,3 +207,104 @@ def test_a_store_of_another_format_version_is_refused_with_what_to_do(store, rec
     group.attrs["format_version"] = "1"
     with pytest.raises(ValueError, match="format version '1'; this dynplan extends version '?2'? .*build a new one"):
         build_frame_store_from_logs(store, list_logs(recorded_logs))
+
+
+def store_bytes(store) -> dict[str, bytes]:
+    return {str(p.relative_to(store)): p.read_bytes() for p in sorted(Path(store).rglob("*")) if p.is_file()}
+
+
+def edit_json(path: Path, change) -> None:
+    data = json.loads(path.read_text())
+    change(data)
+    path.write_text(json.dumps(data))
+
+
+def test_a_damaged_data_type_is_never_written_through_and_is_repaired_from_the_logs(store, recorded_logs):
+    before, print_before = store_bytes(store), fingerprint(store)
+    edit_json(store / "frames" / "zarr.json", lambda meta: meta.update(data_type="int16"))
+    damaged = store_bytes(store)
+    (damage,) = verify_store(store).damage  # no logs: reported, and nothing is written
+    assert (damage.array, damage.kind, damage.chunk, damage.repaired) == ("frames", "array metadata",
+                                                                           "frames/zarr.json", False)  # fmt: skip
+    assert damage.problem == 'data type is "int16" (the format\'s: "uint8")'
+    assert "give the folder of its logs" in damage.describe()
+    assert "python -m flows.build_datasets LOG_DIR --out NEW.zarr" in damage.describe()
+    assert store_bytes(store) == damaged
+    (damage,) = verify_store(store, recorded_logs).damage
+    assert damage.repaired and "rewritten as the format's and its chunks from the logs" in damage.describe()
+    assert store_bytes(store) == before and fingerprint(store) == print_before
+    assert verify_store(store).damage == []
+
+
+def test_a_changed_chunk_shape_and_missing_codecs_are_found_and_repaired(store, recorded_logs):
+    before = store_bytes(store)
+    edit_json(store / "frames" / "zarr.json",
+              lambda meta: meta["chunk_grid"]["configuration"].update(chunk_shape=[2, 407, 48, 48]))  # fmt: skip
+    edit_json(store / "seed" / "zarr.json", lambda meta: meta.update(codecs=meta["codecs"][:2]))
+    problems = {d.array: d.problem for d in verify_store(store, repair=False).damage}
+    assert problems == {"frames": "chunk shape is [2, 407, 48, 48] (the format's: [1, 407, 48, 48])",
+                        "seed": 'codecs are "bytes, zstd" (the format\'s: "bytes, zstd, crc32c")'}  # fmt: skip
+    assert all(d.repaired for d in verify_store(store, recorded_logs).damage)
+    assert store_bytes(store) == before
+
+
+def test_unreadable_metadata_is_named_without_a_traceback(store, recorded_logs):
+    (store / "goal" / "zarr.json").write_text('{"shape": [6')
+    edit_json(store / "log_name" / "zarr.json", lambda meta: meta.pop("data_type"))
+    problems = {d.array: d.problem for d in verify_store(store, repair=False).damage}
+    assert problems["goal"].startswith("not readable JSON (Expecting")
+    assert problems["log_name"] == "not Zarr v3 array metadata: it lacks the key 'data_type'"
+    command = [sys.executable, "-m", "flows.build_datasets", "--verify", str(store)]
+    found = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert found.returncode == 1 and "Traceback" not in found.stderr
+    assert f"{store}: array 'goal', array metadata goal/zarr.json (every episode): not readable JSON" in found.stderr
+    fixed = subprocess.run([*command, str(recorded_logs)], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert fixed.returncode == 0, fixed.stderr
+    assert verify_store(store).damage == []
+
+
+def test_an_episode_count_that_the_arrays_do_not_hold_is_reported_with_how_to_rebuild(store, recorded_logs):
+    group = zarr.open_group(str(store), mode="r+", use_consolidated=False)
+    group.attrs["episodes"] = 9
+    (damage,) = verify_store(store, recorded_logs).damage
+    assert (damage.array, damage.kind, damage.repaired) == ("", "group attributes", False)
+    assert damage.problem == ("attribute 'episodes' is 9, but every array holds fewer (frames 6, goal 6, seed 6, "
+                              "log_name 6, log_sha256 6)")  # fmt: skip
+    assert damage.unrepaired_because.endswith("python -m flows.build_datasets LOG_DIR --out NEW.zarr")
+    group.attrs["episodes"] = "6"
+    (damage,) = verify_store(store, recorded_logs).damage
+    assert damage.problem == "attribute 'episodes' is '6', not a count of episodes (an integer ≥ 0)"
+    report = build_frame_store_from_logs(store, list_logs(recorded_logs))  # a build refuses to go on
+    assert report.added == [] and list(report.failed) == [f"{store}/zarr.json"]
+
+
+def test_format_attributes_and_consolidated_copies_are_repaired_without_logs(store):
+    def damage(meta):
+        meta["attributes"]["pixel_values"] = {"free": 0}
+        meta["consolidated_metadata"]["metadata"]["frames"]["data_type"] = "int16"
+
+    edit_json(store / "zarr.json", damage)
+    assert zarr.open_group(str(store), mode="r")["frames"].dtype == np.int16  # what a plain reader would trust
+    report = verify_store(store)
+    assert sorted(d.kind for d in report.damage) == ["consolidated metadata", "group attributes"]
+    assert all(d.repaired for d in report.damage), report.to_dict()
+    assert zarr.open_group(str(store), mode="r")["frames"].dtype == np.uint8
+    assert zarr.open_group(str(store), mode="r").attrs["pixel_values"]["sedan"] == 144
+    assert verify_store(store).damage == []
+
+
+def test_a_code_array_with_damaged_metadata_is_removed_to_be_encoded_again(store):
+    group = zarr.open_group(str(store), mode="r+", use_consolidated=False)
+    dims = ("episode", "time", "code_y", "code_x")
+    codes = group.create_array("codes_test", shape=(6, 407, 6, 6), chunks=(1, 407, 6, 6), dtype="uint16",
+                               dimension_names=dims, compressors=COMPRESSORS)  # fmt: skip
+    codes[:] = np.arange(6 * 407 * 36, dtype=np.uint16).reshape(6, 407, 6, 6)
+    codes.attrs["episodes"] = 6
+    (late,) = verify_store(store).damage  # the consolidated copy lags until it is consolidated again
+    assert late.kind == "consolidated metadata" and "lacks the arrays ['codes_test']" in late.problem and late.repaired
+    assert verify_store(store).damage == []
+    edit_json(store / "codes_test" / "zarr.json", lambda meta: meta.update(fill_value=7))
+    (damage,) = verify_store(store).damage
+    assert damage.problem == "fill value is 7 (the format's: 0)"
+    assert damage.repaired and "the next `python -m flows.train vqvae` of its model encodes it again" in damage.action
+    assert not (store / "codes_test").exists() and verify_store(store).damage == []

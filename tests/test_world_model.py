@@ -1,5 +1,7 @@
 """The learned forward model: merging decoder samples, predicting through the planner's seam, loading."""
 
+import functools
+
 import numpy as np
 import pytest
 import torch
@@ -245,3 +247,82 @@ def test_observed_frames_are_encoded_once_and_as_alone(tiny_model, monkeypatch):
     assert torch.equal(second, direct) and torch.equal(first[1:], second[:3])
     LearnedWorldModel(tokenizer, prior, samples=2).encode_context(frames[2:6])  # another model on the same tokenizer
     assert encoded == [4, 1, 1]
+
+
+VALUES = "(0, 45, 85, 100, 130, 144, 244)"
+
+
+def _refusal(call, *args) -> str:
+    with pytest.raises(ValueError) as error:
+        call(*args)
+    return str(error.value)
+
+
+def test_predict_refuses_frames_that_are_not_the_worlds_naming_what_it_takes(tiny_model):
+    model = LearnedWorldModel(*tiny_model)
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    expect = f"(t+1, 48, 48) frames of world pixel values {VALUES}"
+    bad = {
+        f"predict: observed must be {expect}; got shape (9, 32, 32)": frames[:, :32, :32],
+        f"predict: observed must be {expect}; got shape (48, 48) (one frame is observed[None])": frames[8],
+        f"predict: observed must hold integer pixel values {VALUES}; got float32": frames.astype(np.float32),
+        f"predict: observed must be a numpy array of {expect}; got list": list(frames),
+        f"predict: no frames observed: observed must hold at least one of {expect}": frames[:0],
+    }
+    for message, observed in bad.items():
+        assert _refusal(model.predict, observed, 2) == message
+    odd = frames.copy()
+    odd[8, 10, 20] = 3
+    assert _refusal(model.predict, odd, 2) == (f"predict: observed frame 8 holds 3 at row 10, column 20, which is not "
+                                               f"a world pixel value {VALUES}")  # fmt: skip
+    negative = frames.astype(np.int64)
+    negative[6, 0, 0] = -244
+    assert "observed frame 6 holds -244 at row 0, column 0" in _refusal(model.predict, negative, 2)
+    odd[0, 10, 20] = 3  # a frame the model does not read (before its last four)
+    odd[8, 10, 20] = frames[8, 10, 20]
+    np.testing.assert_array_equal(model.predict(odd, 2).frames, model.predict(frames, 2).frames)
+    wide = frames.astype(np.int64)  # the world's values in any integer type: the same prediction
+    np.testing.assert_array_equal(model.predict(wide, 2).frames, model.predict(frames, 2).frames)
+
+
+def test_predict_refuses_a_horizon_that_is_not_an_integer_in_range(tiny_model):
+    from dynplan.models.world_model import MAX_HORIZON
+
+    model = LearnedWorldModel(*tiny_model)
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    for k in (0, -1, 2.5, 10**6, True, "3", None, MAX_HORIZON + 1):
+        assert (
+            _refusal(model.predict, frames, k) == f"predict: k must be an integer in [1, 512] (frames ahead); got {k!r}"
+        )
+    assert _refusal(model.predict_codes, frames, 0).startswith("predict_codes: k must be an integer in [1, 512]")
+    assert len(model.predict(frames, np.int64(3)).frames) == 3  # numpy integers are integers
+    assert len(model.predict(frames[:1], MAX_HORIZON).frames) == MAX_HORIZON
+
+
+def test_predict_batch_names_the_episode_whose_argument_is_bad(tiny_model):
+    model = LearnedWorldModel(*tiny_model)
+    frames = generate_world(RoadConfig(), 0).frames[:9]
+    batch = LearnedWorldModel.predict_batch
+    assert _refusal(batch, [model, model], [frames, frames], [2, 0]) == ("predict_batch: ks[1] must be an integer in "
+                                                                         "[1, 512] (frames ahead); got 0")  # fmt: skip
+    assert _refusal(batch, [model, model], [frames[:, :32, :32], frames], [2, 2]) == (
+        f"predict_batch: observed[0] must be (t+1, 48, 48) frames of world pixel values {VALUES}; got shape (9, 32, 32)"
+    )
+    with pytest.raises(ValueError, match="predict_batch: 2 models, 1 observations, 2 horizons"):
+        LearnedWorldModel.predict_batch([model, model], [frames], [2, 2])
+    assert LearnedWorldModel.predict_batch([], [], []) == []
+
+
+def test_load_world_model_names_the_registered_configurations_and_suggests_only_what_works(tmp_path):
+    with pytest.raises(ValueError, match=r"^model must be one of \['default', 'paper'\], got 'nosuch'$") as error:
+        load_world_model(model="nosuch")
+    assert "flows.train" not in str(error.value)
+    for settings, message in [({"samples": 2.5}, "samples must be an integer in [0, 64]; got 2.5"),
+                              ({"futures": -1}, "futures must be an integer in [0, 64]; got -1"),
+                              ({"samples": 10**6}, "samples must be an integer in [0, 64]; got 1000000")]:  # fmt: skip
+        assert _refusal(functools.partial(load_world_model, model="paper", **settings)) == message
+    from dynplan.models.world_model import world_model_parts
+
+    with pytest.raises(CheckpointError, match="configuration 'nosuch' is not registered$") as error:
+        world_model_parts((tmp_path / "vqvae.pt", tmp_path / "pixelcnn.pt"), "nosuch")
+    assert "flows.train" not in str(error.value)

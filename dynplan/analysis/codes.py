@@ -11,12 +11,12 @@ codebook of K entries could represent exactly).
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
 import zarr
 
+from dynplan.cli import CommandParser, run_command
 from dynplan.data.patches import tiles
 from dynplan.env.config import FREE
 
@@ -57,7 +57,7 @@ def code_statistics(store: str, codes: str, episodes: int = 20, coverage_at: tup
 
 
 def main(argv: list[str] | None = None) -> dict[str, float]:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.codes", description=__doc__)
+    parser = CommandParser(prog="python -m dynplan.analysis.codes", description=__doc__)
     parser.add_argument("--store", default="datasets/frames.zarr")
     parser.add_argument("--codes", default="codes_default", help="the store's code array")
     parser.add_argument("--episodes", type=int, default=20, help="episodes read (from the first)")
@@ -73,4 +73,4 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.codes")

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dynplan.cli import CommandParser, run_command
 from dynplan.data.collect import log_path
 from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.evaluation.agent import AgentSpec
@@ -147,8 +148,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     from dynplan.evaluation.store import Run
     from dynplan.evaluation.table import load_results
 
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.deaths", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(prog="python -m dynplan.analysis.deaths", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--technique", default="samples5", choices=[n for n, t in TECHNIQUES.items() if t.search])
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS),
                         help="world model of a learned technique")  # fmt: skip
@@ -181,4 +182,4 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.deaths")

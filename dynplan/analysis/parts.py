@@ -25,6 +25,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from dynplan.cli import CommandParser, run_command
 from dynplan.env.config import FREE, GOAL_VALUE, RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.agent import AgentSpec
@@ -113,8 +114,8 @@ def play_views(technique: str, model: str, agent_speed: float, rollout_steps: in
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.parts", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(prog="python -m dynplan.analysis.parts", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--technique", default="samples5",
                         choices=[n for n, t in TECHNIQUES.items() if t.world_model and t.search])  # fmt: skip
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS))
@@ -153,4 +154,4 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.parts")

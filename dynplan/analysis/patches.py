@@ -8,11 +8,11 @@ a patch size and the fraction of patches — and of whole frames — covered by 
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
 
+from dynplan.cli import CommandParser, run_command
 from dynplan.data.patches import tiles
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
@@ -37,7 +37,7 @@ def patch_coverage(frames: np.ndarray, patch: tuple[int, int], ks: tuple[int, ..
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.patches", description=__doc__)
+    parser = CommandParser(prog="python -m dynplan.analysis.patches", description=__doc__)
     parser.add_argument("--episodes", type=int, default=300, help="407-frame episodes to count over (seeds 0…)")
     args = parser.parse_args(argv)
     config = RoadConfig(agent_speed=0.5)
@@ -47,4 +47,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.patches")

@@ -5,7 +5,6 @@ default [--samples 5] --plot errors.png --figure figure1.png`.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shlex
@@ -13,6 +12,7 @@ import sys
 from pathlib import Path
 
 from dynplan.analysis.context_bound import ContextBoundModel
+from dynplan.cli import CommandParser, run_command
 from dynplan.env.road import World
 from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.prediction import errors_by_horizon, figure1, plot_errors
@@ -48,7 +48,7 @@ def write_curves(path: str | os.PathLike, curves: dict, command: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
+    parser = CommandParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
     parser.add_argument("--model", default="default", choices=list(WORLD_MODELS))
     parser.add_argument("--samples", type=int, nargs="*", default=[0, 5],
                         help="decoder samples (0: Mid; none given: no such variants)")  # fmt: skip
@@ -103,4 +103,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.prediction")

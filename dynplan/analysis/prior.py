@@ -7,11 +7,11 @@ same planner seeds as Table 1.
 
 from __future__ import annotations
 
-import argparse
 import json
 
 import numpy as np
 
+from dynplan.cli import CommandParser, run_command
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.cases import EVAL_SEED_START, Case
@@ -41,7 +41,7 @@ def oracle_with_prior(weights: tuple[float, ...], episodes: int, agent_speed: fl
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prior", description=__doc__)
+    parser = CommandParser(prog="python -m dynplan.analysis.prior", description=__doc__)
     parser.add_argument("--episodes", type=int, default=100)
     args = parser.parse_args(argv)
     for weights in (PAPER_PRIOR, FLAT_PRIOR):
@@ -49,4 +49,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.prior")

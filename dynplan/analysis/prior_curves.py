@@ -10,6 +10,8 @@ import argparse
 import csv
 import os
 
+from dynplan.cli import CommandParser, run_command
+
 
 def read_metrics(path: str | os.PathLike) -> dict[str, list[float]]:
     """A metrics.csv as columns of floats (empty cells, e.g. before a column existed, become NaN)."""
@@ -45,8 +47,8 @@ def plot_prior_curves(runs: dict[str, str | os.PathLike], path: str | os.PathLik
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.prior_curves", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(prog="python -m dynplan.analysis.prior_curves", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("runs", nargs="+", metavar="NAME=METRICS_CSV", help="a label and a prior's metrics.csv")
     parser.add_argument("--plot", required=True, help="where to write the figure (PNG)")
     args = parser.parse_args(argv)
@@ -60,4 +62,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.prior_curves")

@@ -3,7 +3,6 @@ and their training curves: `python -m dynplan.analysis.reconstruction CHECKPOINT
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import os
@@ -12,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from dynplan.cli import CommandParser, run_command
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.cases import EVAL_SEED_START
@@ -81,7 +81,7 @@ def plot_curves(runs: dict[str, str | os.PathLike], path: str | os.PathLike) -> 
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.analysis.reconstruction", description=__doc__)
+    parser = CommandParser(prog="python -m dynplan.analysis.reconstruction", description=__doc__)
     parser.add_argument("checkpoints", nargs="+", help="VQ-VAE checkpoints (checkpoint.pt or vqvae.pt)")
     parser.add_argument("--episodes", type=int, default=20, help="held-out evaluation episodes")
     parser.add_argument("--samples", type=int, default=5, help="decoder samples merged as the planner does")
@@ -95,4 +95,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.analysis.reconstruction")

@@ -2,16 +2,16 @@
 
 from __future__ import annotations
 
-import argparse
 import inspect
 import json
 import sys
 
 from dynplan.bench import BENCHMARKS
+from dynplan.cli import CommandParser, run_command
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.bench", description=__doc__)
+    parser = CommandParser(prog="python -m dynplan.bench", description=__doc__)
     parser.add_argument("name", choices=sorted(BENCHMARKS), help="which benchmark to run")
     parser.add_argument("--json", action="store_true", help="print {case: {figure: value}} as JSON")
     with_device = sorted(n for n, b in BENCHMARKS.items() if "device" in inspect.signature(b).parameters)
@@ -46,4 +46,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run_command(main, "python -m dynplan.bench"))

@@ -8,6 +8,7 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import dask
 import dask.array as da
@@ -20,18 +21,19 @@ from dynplan.data.store import (
     BATCH_EPISODES,
     STORE_FORMAT,
     STORE_VERSION,
+    Y_AXIS,
     LogInfo,
+    array_specs,
     committed,
     committed_checksums,
-    committed_rows,
     inspect_for_store,
     load_frames,
     lock_path,
     store_problem,
 )
 from dynplan.data.verify import verify_store
-from dynplan.env.config import FREE, GOAL_VALUE, obstacle_classes
 from dynplan.files import exclusive
+from dynplan.logs.format import pixel_values
 from dynplan.version import __version__
 
 
@@ -60,17 +62,11 @@ def _create(group: zarr.Group, first: LogInfo) -> None:
     group.attrs.update(
         episodes=0,
         format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **_geometry(first),
-        pixel_values={"free": FREE, "goal": GOAL_VALUE, **{c.name: c.value for c in obstacle_classes(W)}},
-        y_axis="row 0 is the bottom of the world",
+        pixel_values=pixel_values(W), y_axis=Y_AXIS,
     )  # fmt: skip
     # overwrite=True: a first build killed half-way through creating these is simply started again.
-    options = {"compressors": COMPRESSORS, "overwrite": True}
-    group.create_array("frames", shape=(0, T, H, W), chunks=(1, T, H, W), dtype="uint8",
-                       dimension_names=("episode", "time", "y", "x"), **options)  # fmt: skip
-    group.create_array("goal", shape=(0, T, 2), chunks=(BATCH_EPISODES, T, 2), dtype="float64",
-                       dimension_names=("episode", "time", "yx"), **options)  # fmt: skip
-    for name, dtype in (("seed", "int64"), ("log_name", str), ("log_sha256", str)):
-        group.create_array(name, shape=(0,), chunks=(1024,), dtype=dtype, dimension_names=("episode",), **options)
+    for name, spec in array_specs(T, H, W).items():
+        group.create_array(name, compressors=COMPRESSORS, overwrite=True, **spec)
 
 
 def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> BuildReport:
@@ -90,10 +86,11 @@ def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> Bui
 
 def _build_locked(store: str, infos: Sequence[LogInfo]) -> BuildReport:
     report = BuildReport(store, episodes=0)
-    if committed_rows(store):  # check what is in before relying on it, repairing from these logs
+    if Path(store, "zarr.json").is_file():  # check what is in before relying on it, repairing from these logs
         checked = verify_store(store, [info for info in infos if not info.error], lock=False)
         report.repaired = [d.describe() for d in checked.damage if d.repaired]
-        report.failed.update({f"{store}/{d.array}/{d.chunk}": d.describe() for d in checked.unrepaired})
+        report.failed.update({f"{store}/{d.chunk}" if d.kind != "chunk" else f"{store}/{d.array}/{d.chunk}":
+                              d.describe() for d in checked.unrepaired})  # fmt: skip
         if checked.unrepaired:
             return report
     known = set(committed_checksums(store))

@@ -1,7 +1,8 @@
 """Record episodes as MCAP logs, one file per seed, resumably.
 
-`record_episode` is idempotent: a complete log of the same world is left alone, a damaged one is rewritten,
-and a complete log of a *different* world (another level or grid) is an error rather than silently replaced.
+`record_episode` is idempotent: a log that equals what its seed records (logs are reproducible byte for byte
+from seed and config) is left alone, any other log of that world (damaged, or valid but with other content) is
+rewritten, and a valid log of a *different* world (another level or grid) is an error rather than replaced.
 Writes are atomic, so an interrupted run leaves no partial log under its final name.
 """
 
@@ -16,9 +17,11 @@ from pydantic import Field
 
 from dynplan.config import Config
 from dynplan.env.config import RoadConfig
-from dynplan.env.road import generate_world
+from dynplan.env.road import World, generate_world
 from dynplan.files import stale_temporaries as stale_files
+from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import LogError, read_episode_log
+from dynplan.logs.recording import fresh_recording, recording_problem
 from dynplan.logs.writer import write_episode_log
 
 #: Defaults of a recording: the paper's level and the longest episode (the 1× agent's 407 frames), so that one
@@ -56,27 +59,40 @@ def log_path(out_dir: str | os.PathLike, seed: int) -> Path:
 
 def record_episode(out_dir: str | os.PathLike, seed: int, config: RoadConfig | dict = DEFAULT_RECORDING,
                    n_frames: int | None = None) -> RecordResult:  # fmt: skip
-    """Make sure `out_dir` holds a complete log of the episode `seed` under `config` (`n_frames` frames)."""
+    """Make sure `out_dir` holds the log of the episode `seed` under `config` (`n_frames` frames): a log already
+    there is kept ("skipped") only if it is what the seed records, and rewritten otherwise."""
     config = config if isinstance(config, RoadConfig) else RoadConfig.from_dict(config)
     n_frames = config.max_steps if n_frames is None else n_frames
     path = log_path(out_dir, seed)
-    status = "written"
-    if path.exists():
-        try:
-            log = read_episode_log(path)
-        except LogError:
-            status = "rewritten"
-        else:
-            recorded = json.loads(log.metadata["config"])
-            if recorded != config.model_dump() or log.n_frames != n_frames or log.seed != seed:
-                raise LogError(
-                    path,
-                    f"already holds seed {log.seed} recorded with {recorded} over {log.n_frames} frames; "
-                    f"this run asks for seed {seed}, {config.model_dump()} over {n_frames} — use another output folder",
-                )
-            return RecordResult(seed, str(path), "skipped")
-    write_episode_log(path, generate_world(config, seed, n_frames), n_frames=n_frames)
-    return RecordResult(seed, str(path), status)
+    world = generate_world(config, seed, n_frames)
+    if not path.exists():
+        write_episode_log(path, world, n_frames=n_frames)
+        return RecordResult(seed, str(path), "written")
+    fresh = fresh_recording(world, n_frames, path.name)
+    if _is_recording(path, fresh, world, n_frames):
+        return RecordResult(seed, str(path), "skipped")
+    write_bytes_atomic(path, fresh)
+    return RecordResult(seed, str(path), "rewritten")
+
+
+def _is_recording(path: Path, fresh: bytes, world: World, n_frames: int) -> bool:
+    """Whether the log at `path` is the recording `fresh` of `world` (`dynplan.logs.recording`). A valid log of
+    another world is an error: it is not this run's to replace."""
+    if path.read_bytes() == fresh:
+        return True
+    try:
+        log = read_episode_log(path)
+    except LogError:
+        return False
+    config, seed = world.config, world.seed
+    recorded = json.loads(log.metadata["config"])
+    if recorded != config.model_dump() or log.n_frames != n_frames or log.seed != seed:
+        raise LogError(
+            path,
+            f"already holds seed {log.seed} recorded with {recorded} over {log.n_frames} frames; "
+            f"this run asks for seed {seed}, {config.model_dump()} over {n_frames} — use another output folder",
+        )
+    return recording_problem(path, log, world, fresh) is None
 
 
 def stale_temporaries(out_dir: str | os.PathLike) -> list[Path]:

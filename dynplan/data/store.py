@@ -32,8 +32,10 @@ from pathlib import Path
 
 import numpy as np
 import zarr
+from zarr.core.buffer import default_buffer_prototype
+from zarr.storage import MemoryStore
 
-from dynplan.data.chunks import read
+from dynplan.data.chunks import COMPRESSORS, read
 from dynplan.logs.reader import LogError, read_episode_log
 
 STORE_FORMAT = "dynplan.frames"
@@ -43,6 +45,42 @@ STORE_VERSION = "2"
 BATCH_EPISODES = 64
 
 ARRAYS = ("frames", "goal", "seed", "log_name", "log_sha256")
+#: The group attribute `y_axis`.
+Y_AXIS = "row 0 is the bottom of the world"
+
+
+def array_specs(n_frames: int, height: int, width: int) -> dict[str, dict]:
+    """The format of each array of a store of episodes of `n_frames` frames of height × width, with no rows:
+    `zarr.create_array` arguments besides the codecs (`COMPRESSORS`)."""
+    T, H, W = n_frames, height, width
+    strings = {"shape": (0,), "chunks": (1024,), "dtype": str, "dimension_names": ("episode",)}
+    return {
+        "frames": {"shape": (0, T, H, W), "chunks": (1, T, H, W), "dtype": "uint8",
+                   "dimension_names": ("episode", "time", "y", "x")},
+        "goal": {"shape": (0, T, 2), "chunks": (BATCH_EPISODES, T, 2), "dtype": "float64",
+                 "dimension_names": ("episode", "time", "yx")},
+        "seed": {**strings, "dtype": "int64"},
+        "log_name": strings,
+        "log_sha256": strings,
+    }  # fmt: skip
+
+
+def format_metadata(name: str, rows: int, geometry: tuple[int, int, int], attributes: dict | None = None) -> bytes:
+    """The `zarr.json` the format gives the array `name` with `rows` episodes of `geometry` (T, H, W), byte for
+    byte as a build writes it."""
+    spec = array_specs(*geometry)[name]
+    return spec_metadata({**spec, "shape": (rows, *spec["shape"][1:])}, attributes)
+
+
+def spec_metadata(spec: dict, attributes: dict | None = None) -> bytes:
+    """The `zarr.json` of an array made by `zarr.create_array(**spec)` with the store's codecs."""
+    array = zarr.create_array(MemoryStore(), compressors=COMPRESSORS, attributes=attributes or {}, **spec)
+    return metadata_bytes(array.metadata)
+
+
+def metadata_bytes(metadata) -> bytes:
+    """An array's metadata as Zarr writes it to its `zarr.json`."""
+    return metadata.to_buffer_dict(default_buffer_prototype())["zarr.json"].to_bytes()
 
 
 def lock_path(store: str | os.PathLike) -> Path:

@@ -6,12 +6,21 @@ folder of logs (or their `LogInfo`s), it rewrites each damaged chunk of the fram
 episodes it holds, finding each episode's log by its SHA-256, else its log name, else its seed, and checks the
 chunk again. A damaged chunk of a code array (`codes_<name>`) is derived data: its encoding is marked undone
 from that episode on, so the next `flows.train` of the prior re-encodes it.
+
+Before any chunk is read, the metadata is checked against the store's format (`dynplan.data.metadata`): every
+`zarr.json` must be JSON with the keys Zarr needs, each array must have the format's data type, chunk shape, codecs
+(zstd, then CRC-32C), fill value and dimensions, and the group's attributes must agree with each other and with
+the arrays' lengths. An array whose metadata is damaged is never read or written through that metadata: given the
+logs, its metadata is rewritten as the format's and its chunks from the logs; otherwise it is reported, with how to
+repair or rebuild the store.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+import shutil
+import warnings
+from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,18 +29,19 @@ import numpy as np
 import zarr
 
 from dynplan.data.chunks import Chunk, chunk_file, chunk_problem, chunks, is_checksummed
+from dynplan.data.metadata import REBUILD, REENCODE, StoreMetadata, check_metadata
 from dynplan.data.store import (
     ARRAYS,
     LogInfo,
-    committed,
     episodes_digest,
+    format_metadata,
     inspect_for_store,
     list_logs,
     load_frames,
     lock_path,
     sha256_file,
 )
-from dynplan.files import exclusive
+from dynplan.files import exclusive, write_bytes_atomic
 from dynplan.progress import progress
 
 
@@ -47,10 +57,18 @@ class Damage:
     repaired: bool = False
     unrepaired_because: str | None = None
     action: str = "repaired"
+    #: "chunk", or damage to metadata: "array metadata" (`chunk` names its zarr.json), "group attributes" or
+    #: "consolidated metadata" (`array` is "" for the group's own).
+    kind: str = "chunk"
+    #: Group attributes the format determines, with their values (what repairing them sets).
+    fix: dict | None = None
 
     def describe(self) -> str:
         state = self.action if self.repaired else f"not repaired: {self.unrepaired_because or 'no logs given'}"
-        return f"array {self.array!r}, chunk {self.chunk} ({self.episodes}): {self.problem}; {state}"
+        if self.kind == "chunk":
+            return f"array {self.array!r}, chunk {self.chunk} ({self.episodes}): {self.problem}; {state}"
+        where = f"array {self.array!r}" if self.array else "the group"
+        return f"{where}, {self.kind} {self.chunk} ({self.episodes}): {self.problem}; {state}"
 
 
 @dataclass
@@ -71,10 +89,6 @@ class VerifyReport:
                 "damage": [d.describe() for d in self.damage], "unrepaired": len(self.unrepaired)}  # fmt: skip
 
 
-def _code_arrays(group: zarr.Group) -> list[str]:
-    return sorted(name for name in group.array_keys() if name.startswith("codes_"))
-
-
 def _column(array: zarr.Array, n: int, bad: set[str]) -> list:
     """The first `n` values of a 1-D array, None where its chunk is damaged."""
     values: list = [None] * n
@@ -89,67 +103,94 @@ Logs = str | os.PathLike | Sequence[str | os.PathLike | LogInfo]
 
 def verify_store(store: str | os.PathLike, logs: Logs | None = None, repair: bool = True,
                  lock: bool = True) -> VerifyReport:  # fmt: skip
-    """Read every chunk of `store` and report the damaged ones; with `logs` (a folder of logs, their paths or
-    their `LogInfo`s) and `repair`, rewrite the damaged episodes from them. Holds the store's lock unless the
-    caller does (`lock=False`)."""
+    """Check the metadata of `store` against its format and read every chunk, reporting what is damaged; with
+    `logs` (a folder of logs, their paths or their `LogInfo`s) and `repair`, rewrite the damaged episodes (and
+    damaged array metadata) from them. Holds the store's lock unless the caller does (`lock=False`)."""
     store = str(store)
     if not Path(store, "zarr.json").is_file():
         raise FileNotFoundError(f"{store}: no frames store there (no zarr.json)")
     guard = exclusive(lock_path(store), waiting=f"{store}: another build or repair holds the store")
     with guard if lock else nullcontext():
-        group = zarr.open_group(store, mode="r+" if repair else "r", use_consolidated=False)
-        n = committed(group)
+        meta = check_metadata(store)
+        n = meta.episodes or 0
         report = VerifyReport(store, n)
-        if n == 0:
+        report.damage = [Damage(rows=range(0, n), episodes="every episode", **p) for p in meta.problems]
+        if not n:  # nothing committed (or the count itself is damaged: reported)
             return report
-        found: dict[str, list[tuple[Chunk, str]]] = {}
-        names = [name for name in ARRAYS if name in group] + _code_arrays(group)
-        for name in ARRAYS:
-            if name not in group:
-                report.damage.append(Damage(name, "-", range(0, n), "the array is missing", "every episode"))
-            elif group[name].shape[0] < n:
-                report.damage.append(Damage(name, "-", range(group[name].shape[0], n),
-                                            f"holds {group[name].shape[0]} of the {n} committed episodes",
-                                            "the episodes after those"))  # fmt: skip
-        for name in progress(names, total=len(names), description="verify"):
-            array = group[name]
-            rows = int(array.attrs.get("episodes", n)) if name.startswith("codes_") else n
-            if not is_checksummed(array):
-                problem = "its chunks carry no checksum, so damage cannot be detected"
-                report.damage.append(Damage(name, "-", range(0, 0), problem, "every episode"))
-            found[name] = []
-            for chunk in chunks(array, rows):
-                report.chunks += 1
-                problem = chunk_problem(store, array, chunk)
-                if problem:
-                    found[name].append((chunk, problem))
+        group = zarr.open_group(store, mode="r+" if repair else "r", use_consolidated=False)
+        names = [name for name in meta.shapes if name not in meta.damaged]
+        report.damage.extend(_short_arrays(meta, n))
+        found = _check_chunks(store, group, names, n, report)
         bad = {name: {c.key for c, _ in found[name]} for name in names}
         identity = {name: _column(group[name], n, bad[name]) for name in ("seed", "log_name", "log_sha256")
-                    if name in group and group[name].shape[0] >= n}  # fmt: skip
-
-        def describe(rows: range) -> str:
-            shown = []
-            for row in list(rows)[:3]:
-                seed, log = (identity.get(k, [None] * n)[row] for k in ("seed", "log_name"))
-                shown.append(f"episode {row}" + (f", seed {seed}" if seed is not None else "")
-                             + (f", log {log}" if log is not None else ""))  # fmt: skip
-            more = f" and {len(rows) - 3} more" if len(rows) > 3 else ""
-            return "; ".join(shown) + more
-
-        damage = [Damage(name, c.key, c.rows, p, describe(c.rows)) for name in names for c, p in found[name]]
-        report.damage.extend(damage)
-        if repair and damage:
-            repairer = _Repair(store, group, n, identity, logs)
-            for item in damage:
+                    if name in names and meta.shapes[name][0] >= n}  # fmt: skip
+        describe = _describer(identity, n)
+        report.damage.extend(Damage(name, c.key, c.rows, p, describe(c.rows)) for name in names for c, p in found[name])
+        if repair and report.damage:
+            repairer = _Repair(store, group, n, identity, logs, meta)
+            for item in report.damage:
                 repairer.repair(item)
+            repairer.consolidate(report.damage)
         return report
+
+
+def _short_arrays(meta: StoreMetadata, n: int) -> list[Damage]:
+    """Arrays that are missing, or hold fewer than the `n` committed episodes (unless the group's count is the
+    damaged one: `check_metadata` reports that)."""
+    if any("'episodes' is" in p["problem"] for p in meta.problems):
+        return []
+    damage = []
+    for name in ARRAYS:
+        if name in meta.damaged:
+            continue
+        if name not in meta.shapes:
+            damage.append(Damage(name, "-", range(0, n), "the array is missing", "every episode"))
+        elif meta.shapes[name][0] < n:
+            length = meta.shapes[name][0]
+            damage.append(Damage(name, "-", range(length, n), f"holds {length} of the {n} committed episodes",
+                                 "the episodes after those"))  # fmt: skip
+    return damage
+
+
+def _check_chunks(store: str, group: zarr.Group, names: list[str], n: int, report: VerifyReport) -> dict:
+    """Read every chunk of the arrays `names` up to their committed rows: {array: [(chunk, problem)]}."""
+    found: dict[str, list[tuple[Chunk, str]]] = {}
+    for name in progress(names, total=len(names), description="verify"):
+        array = group[name]
+        rows = int(array.attrs.get("episodes", n)) if name.startswith("codes_") else n
+        if not is_checksummed(array):
+            problem = "its chunks carry no checksum, so damage cannot be detected"
+            report.damage.append(Damage(name, "-", range(0, 0), problem, "every episode"))
+        found[name] = []
+        for chunk in chunks(array, rows):
+            report.chunks += 1
+            problem = chunk_problem(store, array, chunk)
+            if problem:
+                found[name].append((chunk, problem))
+    return found
+
+
+def _describer(identity: dict[str, list], n: int) -> Callable[[range], str]:
+    """describe(rows): the episodes of `rows` with their seeds and logs, as far as the store still knows them."""
+
+    def describe(rows: range) -> str:
+        shown = []
+        for row in list(rows)[:3]:
+            seed, log = (identity.get(k, [None] * n)[row] for k in ("seed", "log_name"))
+            shown.append(f"episode {row}" + (f", seed {seed}" if seed is not None else "")
+                         + (f", log {log}" if log is not None else ""))  # fmt: skip
+        more = f" and {len(rows) - 3} more" if len(rows) > 3 else ""
+        return "; ".join(shown) + more
+
+    return describe
 
 
 class _Repair:
     """Rewrites damaged chunks from the logs of the episodes they hold."""
 
-    def __init__(self, store: str, group: zarr.Group, n: int, identity: dict[str, list], logs) -> None:
-        self.store, self.group, self.n, self.identity = store, group, n, identity
+    def __init__(self, store: str, group: zarr.Group, n: int, identity: dict[str, list], logs,
+                 meta: StoreMetadata) -> None:  # fmt: skip
+        self.store, self.group, self.n, self.identity, self.meta = store, group, n, identity, meta
         if logs is None:
             self.logs: list[LogInfo | Path] = []
         elif isinstance(logs, (str, os.PathLike)):
@@ -198,8 +239,11 @@ class _Repair:
         return [log.path if isinstance(log, LogInfo) else str(log) for log in self.logs]
 
     def repair(self, item: Damage) -> None:
+        if item.kind != "chunk":
+            self._repair_metadata(item)
+            return
         if item.chunk == "-":
-            item.unrepaired_because = "only damaged chunks can be repaired in place; rebuild the store from its logs"
+            item.unrepaired_because = f"only damaged chunks can be repaired in place; {REBUILD}"
             return
         array = self.group[item.array]
         if not self.logs and not item.array.startswith("codes_"):
@@ -210,13 +254,17 @@ class _Repair:
             item.action = (f"its encoding is marked undone from episode {item.rows.start} on; the next "
                            "`python -m flows.train vqvae` of its model encodes it again")  # fmt: skip
             return
-        rows = range(item.rows.start, min(item.rows.stop, self.n))
+        item.unrepaired_because = self._rewrite(array, item.chunk, item.rows)
+        item.repaired = item.unrepaired_because is None
+
+    def _rewrite(self, array: zarr.Array, key: str, rows: range) -> str | None:
+        """Rewrite the chunk `key` of `array` (rows `rows`) from the logs of its episodes; why not, if not."""
+        rows = range(rows.start, min(rows.stop, self.n))
         infos = []
         for row in rows:
             info = self._log_of(row)
             if isinstance(info, str):
-                item.unrepaired_because = info
-                return
+                return info
             infos.append(info)
         values = {
             "frames": lambda: np.stack([load_frames(i.path) for i in infos]),
@@ -224,13 +272,50 @@ class _Repair:
             "seed": lambda: np.array([i.seed for i in infos], dtype=np.int64),
             "log_name": lambda: np.array([i.name for i in infos]),
             "log_sha256": lambda: np.array([i.sha256 for i in infos]),
-        }[item.array]()
-        chunk_file(self.store, array, item.chunk).unlink(missing_ok=True)  # a damaged chunk cannot be updated
+        }[array.basename]()
+        chunk_file(self.store, array, key).unlink(missing_ok=True)  # a damaged chunk cannot be updated
         region = (slice(rows.start, rows.stop), *(slice(None),) * (array.ndim - 1))
         array[region] = values
-        problem = chunk_problem(self.store, array, next(c for c in chunks(array) if c.key == item.chunk))
-        item.repaired = problem is None
-        item.unrepaired_because = problem
+        return chunk_problem(self.store, array, next(c for c in chunks(array) if c.key == key))
+
+    def _repair_metadata(self, item: Damage) -> None:
+        """Group attributes the format determines are set; a code array is removed (derived data, encoded again);
+        an array of episodes gets the format's metadata and, from the logs, every chunk."""
+        if item.kind == "group attributes" and item.fix:
+            self.group.attrs.update(item.fix)
+            item.repaired, item.action = True, "set to the format's"
+        elif item.kind == "array metadata" and item.array.startswith("codes_"):
+            shutil.rmtree(Path(self.store, item.array))
+            item.repaired, item.action = True, f"the array is removed; {REENCODE.split('; ')[1]}"
+        elif item.kind == "array metadata" and self.meta.geometry and self.logs:
+            path = Path(self.store, item.array)
+            attributes = self.meta.attributes.get(item.array)
+            write_bytes_atomic(path / "zarr.json", format_metadata(item.array, self.n, self.meta.geometry, attributes))
+            shutil.rmtree(path / "c", ignore_errors=True)  # written under other metadata: none can be trusted
+            array = self.group[item.array]
+            for chunk in chunks(array, self.n):
+                item.unrepaired_because = self._rewrite(array, chunk.key, chunk.rows)
+                if item.unrepaired_because:
+                    return
+            item.repaired, item.action = True, "its metadata is rewritten as the format's and its chunks from the logs"
+
+    def consolidate(self, damage: list[Damage]) -> None:
+        """Consolidate the metadata again after a repair of metadata, unless an array's own is still damaged (the
+        consolidated copies would take its damage)."""
+        touched = any(d.kind != "chunk" and d.repaired for d in damage)
+        if self.meta.consolidated is None or not (touched or any(d.kind == "consolidated metadata" for d in damage)):
+            return
+        if any(d.kind == "array metadata" and not d.repaired for d in damage):
+            for item in damage:
+                if item.kind == "consolidated metadata":
+                    item.unrepaired_because = "the arrays' own metadata is damaged too"
+            return
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
+            zarr.consolidate_metadata(self.store)
+        for item in damage:
+            if item.kind == "consolidated metadata":
+                item.repaired, item.action = True, "consolidated again from the arrays' own metadata"
 
     def _reset_codes(self, array: zarr.Array, first_bad: int) -> None:
         """Mark the encoding undone from `first_bad` on, so that the next encoding redoes it from there."""

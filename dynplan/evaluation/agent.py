@@ -18,6 +18,7 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, Technique, learned_technique, technique
 from dynplan.models.caution import Caution
+from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.device import check_device
 from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
 from dynplan.models.world_model import world_model_parts, world_model_paths
@@ -96,9 +97,16 @@ class AgentSpec(Config):
                             "rollout_steps": rollout_steps or self.rollout_steps, "seed": seed})  # fmt: skip
 
     def check_weights(self) -> None:
-        """Load (and cache) a learned agent's checkpoints: a CheckpointError names what is missing or damaged."""
+        """Check and load (and cache) a learned agent's checkpoints before anything plays: a CheckpointError names
+        the file that is missing, damaged, of the wrong shapes, non-finite, unlike its model card or another
+        configuration's, or whose tokenizer cannot take the agent's caution."""
         if self.plans_with.world_model:
-            world_model_parts(world_model_paths(self.model, self.model_dir), self.model)
+            paths = world_model_paths(self.model, self.model_dir)
+            tokenizer, _ = world_model_parts(paths, self.model)
+            try:
+                self.own_caution.check_fits(tokenizer.config.local, tokenizer.config.name)
+            except ConfigError as error:
+                raise CheckpointError(f"{paths[0]}: {str(error).removeprefix('Caution: ')}") from None
 
     def forward(self, world: World) -> ForwardModel | None:
         """The forward model this agent plans against on the recorded `world` (None: it uses none)."""

@@ -13,7 +13,9 @@ import json
 import os
 import statistics
 
-from dynplan.evaluation.store import Run, case_key, provenance_of
+from dynplan.cli import CommandParser, run_command
+from dynplan.evaluation.store import Run, StoreError, case_key, provenance_of
+from dynplan.paths import PathArgument, PathKind
 
 
 def _median_ms(rows) -> float:
@@ -46,22 +48,28 @@ def compare_runs(a: Run, b: Run) -> dict:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.evaluation.compare", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    """The command: both runs are read through the store's schema first; a missing run or a damaged or invalid
+    manifest or row is one line on stderr and exit status 2."""
+    parser = CommandParser(prog="python -m dynplan.evaluation.compare", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     for side in ("a", "b"):
-        parser.add_argument(f"store_{side}", help=f"results store {side.upper()} (e.g. datasets/results)")
+        parser.add_argument(f"store_{side}", type=PathArgument(PathKind.RESULTS_FOLDER),
+                            help=f"results store {side.upper()} (e.g. datasets/results)")  # fmt: skip
         parser.add_argument(f"run_{side}", help=f"the run of store {side.upper()}")
     args = parser.parse_args(argv)
     runs = []
-    for store, name in ((args.store_a, args.run_a), (args.store_b, args.run_b)):
-        run = Run(store, name)
-        if not run.exists():
-            parser.error(f"{os.path.join(store, 'runs', name)}: no such run")
-        runs.append(run)
-    result = compare_runs(*runs)
+    try:
+        for store, name in ((args.store_a, args.run_a), (args.store_b, args.run_b)):
+            run = Run(store, name)
+            if not run.exists():
+                parser.error(f"{os.path.join(store, 'runs', name)}: no such run")
+            runs.append(run)
+        result = compare_runs(*runs)
+    except StoreError as error:
+        parser.error(str(error))
     print(json.dumps(result, indent=1))
     return result
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.evaluation.compare")

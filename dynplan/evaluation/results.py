@@ -4,6 +4,11 @@ Writes `datasets/results/table1.{json,md}` (from the evaluation runs), `docs/res
 one table of every validation, candidate and superseded run, prediction error against the horizon, Figure 1 and the
 causes of the learned agents' deaths) and the Table 1 block of README.md. Everything on the page comes from files of the
 store; the page is regenerated, never edited (a test compares it with what this command writes).
+
+Nothing a page shows is lost without being asked: a `--results-dir` that does not exist is refused (not created),
+and so is a store from which a page would show fewer table rows, episodes or images than it shows now (a mistyped
+or partial store would otherwise blank the published tables); `--allow-loss` writes such pages anyway. Every
+check runs before the first file is written, and each file is replaced atomically.
 """
 
 from __future__ import annotations
@@ -11,11 +16,14 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 from pathlib import Path
 
-from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs
-from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, write_table
+from dynplan.cli import CommandParser, run_command
+from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs, shown
+from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, table_files
 from dynplan.files import write_bytes_atomic
+from dynplan.paths import PathArgument, PathKind, check_output
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python -m dynplan.evaluation.results"
@@ -24,6 +32,14 @@ README_MARKER = "<!-- table1: generated from datasets/results/table1.json -->"
 HORIZONS = (1, 3, 5, 10)
 #: The causes of a death, as `dynplan.analysis.deaths` counts them.
 DEATH_CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
+#: A cell's goals / timeouts / deaths, at its start (not a prediction's "15.1/0.2" nor a death's "1: 0/1/0/0/0").
+_GTD_CELL = re.compile(r"(\d+)/(\d+)/(\d+)(?![\d/.])")
+_IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+)\)")
+
+
+class ResultsError(ValueError):
+    """The pages are not written: the store is not there, or they would lose what they show; the message names the
+    path and what is wrong."""
 
 
 def _pct(x: float) -> str:
@@ -156,12 +172,15 @@ def _agents(run: Run, manifest: dict) -> dict[tuple, dict]:
     return agents
 
 
-def _run_lines(run: Run, reference: dict, records: dict[str, str], ks: list[int]) -> list[str]:
-    """A run's lines of the summary: one per agent, a G/T/D cell per k; the run's name and role, its caution and
-    weights only where they change. `reference`: the evaluation's manifest (what `committed` means)."""
+def _run_lines(
+    run: Run, agents: dict[tuple, dict], reference: dict, records: dict[str, str], ks: list[int]
+) -> list[str]:
+    """A run's lines of the summary: one per agent (`agents`, `_agents`), a G/T/D cell per k; the run's name and
+    role, its caution and weights only where they change. `reference`: the evaluation's manifest (what `committed`
+    means)."""
     manifest = run.manifest()
     lines, last = [], None
-    for (technique, model, speed), by_k in _agents(run, manifest).items():
+    for (technique, model, speed), by_k in agents.items():
         entry = manifest["world_models"].get(model, {}) if model else {}
         caution = _caution(entry) if entry else "–"
         if manifest["playouts"] != reference.get("playouts", manifest["playouts"]):
@@ -184,7 +203,8 @@ def runs_section(results: Path) -> list[str]:
         return []
     evaluation = Run(results, EVALUATION_RUN)
     reference = evaluation.manifest() if evaluation.exists() else {}
-    ks = sorted({k for run in chosen for by_k in _agents(run, run.manifest()).values() for k in by_k if k is not None})
+    agents = {run.name: _agents(run, run.manifest()) for run in chosen}
+    ks = sorted({k for found in agents.values() for by_k in found.values() for k in by_k if k is not None})
     lines = ["## Validation, candidate and superseded runs", "",
              "*Validation* runs play the validation episodes (seeds 2,000,000…), where settings were chosen; "
              "*candidate* runs replay weights or settings not adopted on the evaluation episodes; *superseded* runs "
@@ -198,12 +218,13 @@ def runs_section(results: Path) -> list[str]:
              "|" + " --- |" * (5 + len(ks))]  # fmt: skip
     records = _training_records(results)
     for run in chosen:
-        lines += _run_lines(run, reference, records, ks)
+        lines += _run_lines(run, agents[run.name], reference, records, ks)
     return [*lines, ""]
 
 
-def results_page(results: Path, docs: Path) -> str:
-    rows = aggregate(load_results(results))
+def results_page(results: Path, docs: Path, rows: list[dict] | None = None) -> str:
+    """docs/results.md from the store at `results` (`rows`: Table 1's aggregated rows, if already at hand)."""
+    rows = aggregate(load_results(results)) if rows is None else rows
     lines = ["# Results", "",
              f"Generated by `{COMMAND}` from the results store (`datasets/results/`); do not edit by hand. Each "
              "figure below names the command that measured it; the runs' manifests (`datasets/results/runs/*/"
@@ -228,30 +249,130 @@ def results_page(results: Path, docs: Path) -> str:
 def readme_with_table(readme: str, rows: list[dict]) -> str:
     """README.md with the table after its marker replaced by Table 1's compact form (`render_compact`)."""
     if README_MARKER not in readme:
-        raise ValueError(f"README.md lacks the marker {README_MARKER!r}")
+        raise ValueError(f"lacks the marker {README_MARKER!r}")
     head, tail = readme.split(README_MARKER, 1)
     rest = tail.lstrip("\n").split("\n\n", 1)[1] if "\n\n" in tail.lstrip("\n") else ""
     return f"{head}{README_MARKER}\n{render_compact(rows).rstrip()}\n\n{rest}"
 
 
-def main(argv: list[str] | None = None) -> Path:
-    parser = argparse.ArgumentParser(prog=COMMAND, description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--results-dir", default=str(ROOT / "datasets" / "results"), help="the results store")
-    parser.add_argument("--docs", default=str(ROOT / "docs"), help="where results.md goes")
+def page_entries(text: str) -> dict[str, int]:
+    """What a generated page shows, entry by entry, with the episodes each counts: every table row, named by its
+    section, its table's title (the name of the file that a line in backquotes leading it names) and its label
+    cells (the first and the agent's; ″ repeats the cell above), and every image (by file name: a store read from
+    another folder shows the same entries)."""
+    entries: dict[str, int] = {}
+    section = title = ""
+    header: list[str] | None = None
+    above: list[str] = []
+    for line in text.splitlines():
+        if not line.startswith("|"):
+            header = None
+            if line.startswith("#"):
+                section, title = line.lstrip("# "), ""
+            elif line.strip():
+                title = Path(line.split("`")[1]).name if line.startswith("`") else ""
+            entries.update({f"image {Path(target).name}": 0 for target in _IMAGE.findall(line)})
+            continue
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if header is None:
+            header, above = cells, []
+            continue
+        if set(line) <= set("|-: "):
+            continue
+        named = [above[j] if c == "″" and j < len(above) else c for j, c in enumerate(cells)]
+        above = named
+        labels = [named[j] for j in dict.fromkeys([0, header.index("agent") if "agent" in header else 0])]
+        name = " / ".join(part for part in (section, title, *labels) if part)
+        while name in entries:
+            name += " ″"
+        cells_gtd = [_GTD_CELL.match(c) for c in cells[1:]]
+        entries[name] = sum(int(m[1]) + int(m[2]) + int(m[3]) for m in cells_gtd if m)
+    return entries
+
+
+def lost_entries(old: str, new: str) -> list[str]:
+    """The entries of page `old` (`page_entries`) that page `new` drops or shows with fewer episodes."""
+    before, after = page_entries(old), page_entries(new)
+    lost = []
+    for name, episodes in before.items():
+        if name not in after:
+            lost.append(name)
+        elif after[name] < episodes:
+            lost.append(f"{name} ({episodes} → {after[name]} episodes)")
+    return lost
+
+
+def _check_loss(pages: dict[Path, str], results: Path) -> None:
+    """A ResultsError naming each page that would lose entries and the first of them."""
+    found = []
+    for path, text in pages.items():
+        if path.suffix != ".md" or not path.is_file():
+            continue
+        old = path.read_text()
+        lost = lost_entries(old, text)
+        if lost:
+            more = f"; and {len(lost) - 2} more" if len(lost) > 2 else ""
+            found.append(f"{shown(path)} would lose {len(lost)} of its {len(page_entries(old))} entries "
+                         f"({'; '.join(lost[:2])}{more})")  # fmt: skip
+    if found:
+        raise ResultsError(f"the results store {shown(results)} shows less than the pages: " + " | ".join(found)
+                           + "; check --results-dir, or pass --allow-loss to write them anyway")  # fmt: skip
+
+
+def publish(results: Path, docs: Path, readme: Path | None = None, allow_loss: bool = False) -> list[Path]:
+    """Write Table 1 (table1.json, table1.md in `results`), `docs`/results.md and `readme`'s Table 1 from the store
+    at `results`; return the paths written. A ResultsError, before anything is written, when the store or the
+    README is not there, or a page would lose entries (`lost_entries`) and `allow_loss` is not given."""
+    if not results.is_dir():
+        raise ResultsError(f"--results-dir {shown(results)}: no such folder (it is read, never created)")
+    if not (results / "runs").is_dir():
+        raise ResultsError(f"--results-dir {shown(results)}: not a results store (no runs/ folder in it)")
+    check_output(docs, "--docs", "folder", inputs=(results,))
+    if readme is not None:
+        check_output(readme, "--readme", "file", inputs=(results,))
+        if not readme.is_file():
+            raise ResultsError(f"--readme {shown(readme)}: no such file")
+    rows = aggregate(load_results(results))
+    table_json, table_md = table_files(rows)
+    pages = {results / "table1.json": table_json, results / "table1.md": table_md,
+             docs / "results.md": results_page(results, docs, rows)}  # fmt: skip
+    if readme is not None:
+        try:
+            pages[readme] = readme_with_table(readme.read_text(), rows)
+        except (ValueError, UnicodeDecodeError) as error:
+            raise ResultsError(f"--readme {shown(readme)}: {error}") from None
+    if not allow_loss:
+        _check_loss(pages, results)
+    return [write_bytes_atomic(path, text.encode()) for path, text in pages.items()]
+
+
+def _parser() -> CommandParser:
+    parser = CommandParser(prog=COMMAND, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--results-dir", type=PathArgument(PathKind.RESULTS_FOLDER),
+                        default=str(ROOT / "datasets" / "results"),
+                        help="the results store (an existing folder)")  # fmt: skip
+    parser.add_argument("--docs", type=PathArgument(PathKind.OUTPUT_FOLDER), default=str(ROOT / "docs"),
+                        help="where results.md goes")  # fmt: skip
     parser.add_argument("--readme", default=str(ROOT / "README.md"), help="the README whose Table 1 to update "
                         "('' to leave it)")  # fmt: skip
+    parser.add_argument("--allow-loss", action="store_true", help="write the pages even where they would show "
+                        "fewer rows, episodes or images than they do now")  # fmt: skip
+    return parser
+
+
+def main(argv: list[str] | None = None) -> Path:
+    """The command: parse `argv`, write the tables and pages (`publish`); a store, README or loss the pages refuse
+    is one line on stderr and exit status 2, before anything is written."""
+    parser = _parser()
     args = parser.parse_args(argv)
-    results, docs = Path(args.results_dir), Path(args.docs)
-    rows = aggregate(load_results(results))
-    _, table_md = write_table(rows, results)
-    page = write_bytes_atomic(docs / "results.md", results_page(results, docs).encode())
-    if args.readme:
-        readme = Path(args.readme)
-        write_bytes_atomic(readme, readme_with_table(readme.read_text(), rows).encode())
-    print(f"wrote {table_md.parent / 'table1.json'}, {table_md}, {page}" + (f", {args.readme}" if args.readme else ""))
-    return page
+    try:
+        written = publish(Path(args.results_dir), Path(args.docs), Path(args.readme) if args.readme else None,
+                          allow_loss=args.allow_loss)  # fmt: skip
+    except ValueError as error:  # StoreError, ResultsError, a table that mixes provenance: all before writing
+        parser.error(str(error))
+    print("wrote " + ", ".join(map(shown, written)))
+    return written[2]
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, COMMAND)

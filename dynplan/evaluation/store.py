@@ -10,6 +10,12 @@ JSON parser (`pandas.read_json(path, lines=True)`, duckdb's `read_json_auto`). A
 `episodes.lock` and write one line with one `write`; a torn last line (a writer killed mid-line) is reported and
 cut off by the next append, and its episode is played again. A row counts for its run only while its provenance
 equals the manifest's; rows played under an earlier manifest stay in the file, stale, and are not counted.
+
+Both files have a schema (`dynplan.evaluation.store_schema`), checked on every read and before every write: a
+manifest or row of the wrong types, out of range or missing a field is a StoreError naming the file and the line,
+never a row that silently stops counting. A case played twice with the same provenance is refused naming both
+lines when the two rows differ (the table would otherwise count whichever came last); a line repeated exactly is
+read once.
 """
 
 from __future__ import annotations
@@ -25,15 +31,11 @@ from contextlib import AbstractContextManager
 from datetime import datetime, timezone
 from pathlib import Path
 
+from dynplan.evaluation.store_schema import FORMAT, ROLES, ManifestSchema, RowSchema, first_problem, line_of
 from dynplan.files import exclusive, is_held, write_bytes_atomic
 from dynplan.models.caution import Caution
 from dynplan.version import __version__
 
-FORMAT = "dynplan-run/1"
-#: evaluation: counts in Table 1; validation: the validation episodes, where settings are chosen; candidate: the
-#: evaluation episodes with weights or settings not committed; superseded: the evaluation of weights or settings
-#: that are no longer the committed ones.
-ROLES = ("evaluation", "validation", "candidate", "superseded")
 #: Table 1's run.
 EVALUATION_RUN = "evaluation"
 #: What identifies an episode within a run.
@@ -42,11 +44,21 @@ CASE_KEYS = ("technique", "model", "agent_speed", "rollout_steps", "seed")
 PROVENANCE_KEYS = ("playouts", "log_sha256", "world_model_sha256", *Caution.model_fields)
 #: What a row records of how its episode went; every other key of a row is its case or its provenance.
 RESULT_KEYS = ("outcome", "steps", "decision_ms", "wall_s", "code_version")
+_NAMED_KEYS = frozenset((*CASE_KEYS, *RESULT_KEYS, *PROVENANCE_KEYS))
 _RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
 
 
 class StoreError(ValueError):
     """A run's files are unreadable or inconsistent; the message names the file and what is wrong."""
+
+
+def shown(path: str | os.PathLike) -> str:
+    """A path as a message names it: relative to the working folder when inside it (as the user typed it)."""
+    path = Path(path)
+    try:
+        return str(path.absolute().relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
 
 
 class TornRowWarning(UserWarning):
@@ -72,7 +84,7 @@ def provenance_of(row: Mapping) -> dict:
     """The provenance a row records: `PROVENANCE_KEYS` (None where absent: a caution setting that is off) and any
     other key that is neither its case nor its result — a setting recorded by code that had it, which a row
     played without it does not share."""
-    extra = {k: v for k, v in row.items() if k not in (*CASE_KEYS, *RESULT_KEYS, *PROVENANCE_KEYS)}
+    extra = {k: v for k, v in row.items() if k not in _NAMED_KEYS}
     return {**{k: row.get(k) for k in PROVENANCE_KEYS}, **extra}
 
 
@@ -108,21 +120,41 @@ class Run:
 
     # -- manifest ---------------------------------------------------------------------------------------------
     def manifest(self) -> dict:
-        """The run's manifest (StoreError when it is missing or damaged)."""
+        """The run's manifest, checked against its schema and its folder's name (StoreError naming the file and
+        line when it is missing, damaged or invalid)."""
+        path = shown(self.manifest_path)
         try:
-            manifest = json.loads(self.manifest_path.read_text())
+            text = self.manifest_path.read_text()
+            manifest = json.loads(text)
         except FileNotFoundError:
-            raise StoreError(f"{self.manifest_path}: no such manifest (run {self.name!r} never started)") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise StoreError(f"{self.manifest_path}: not a JSON manifest ({error})") from None
+            raise StoreError(f"{path}: no such manifest (run {self.name!r} never started)") from None
+        except UnicodeDecodeError as error:
+            raise StoreError(f"{path}: not a JSON manifest (not UTF-8 text: {error.reason})") from None
+        except json.JSONDecodeError as error:
+            where = f"{path}:{error.lineno}"
+            raise StoreError(f"{where}: not a JSON manifest ({error.msg}, column {error.colno})") from None
+        except RecursionError:
+            raise StoreError(f"{path}: not a manifest (nested too deeply to read)") from None
+        except OSError as error:
+            raise StoreError(f"{path}: cannot be read ({error.strerror})") from None
         found = manifest.get("format") if isinstance(manifest, dict) else None
         if found != FORMAT:
-            raise StoreError(f"{self.manifest_path}: not a {FORMAT} manifest (format {found!r})")
+            raise StoreError(f"{path}: not a {FORMAT} manifest (format {found!r})")
+        problem = first_problem(ManifestSchema, manifest)
+        if problem is not None:
+            raise StoreError(f"{path}:{line_of(text, problem[0])}: {problem[1]}")
+        if manifest["name"] != self.name:
+            raise StoreError(f"{path}:{line_of(text, ('name',))}: field 'name' = {manifest['name']!r} is not its "
+                             f"run's folder name {self.name!r}")  # fmt: skip
         return manifest
 
     def write_manifest(self, manifest: Mapping) -> None:
+        """Write the manifest, atomically; one its schema refuses is a StoreError and is not written."""
         if manifest.get("role") not in ROLES:
             raise StoreError(f"run {self.name!r}: role {manifest.get('role')!r} is invalid; one of {ROLES}")
+        problem = first_problem(ManifestSchema, dict(manifest))
+        if problem is not None:
+            raise StoreError(f"{shown(self.manifest_path)}: the manifest to write is invalid: {problem[1]}")
         write_bytes_atomic(self.manifest_path, (json.dumps(manifest, indent=1) + "\n").encode())
 
     def begin(self, role: str, playouts: int, seeds: Iterable[int], log_sha256: Mapping[int, str | None],
@@ -161,20 +193,27 @@ class Run:
         return exclusive(self._lock_path)
 
     def rows(self) -> list[dict]:
-        """Every row of the run's file, in the order written (stale ones included). An unfinished last line is left
-        out, and reported (TornRowWarning) unless a writer is at work on it; a damaged line before the last is a
-        StoreError naming it."""
+        """Every row of the run's file, in the order written (stale ones included; a line repeated exactly, once).
+        An unfinished last line is left out, and reported (TornRowWarning) unless a writer is at work on it; a
+        damaged or invalid line, or a second row of a case and provenance that differs from the first, is a
+        StoreError naming the file and line(s)."""
         try:
             data = self.episodes_path.read_bytes()
         except FileNotFoundError:
             return []
+        except OSError as error:
+            raise StoreError(f"{shown(self.episodes_path)}: cannot be read ({error.strerror})") from None
         if data and not data.endswith(b"\n") and is_held(self._lock_path):
             data = data[: data.rfind(b"\n") + 1]  # another writer's row, still being written
-        return _parse(data, self.episodes_path)
+        return [row for _, row in _merge({}, _parse(data, self.episodes_path), self.episodes_path)]
 
     def append(self, row: Mapping) -> bool:
         """Append one episode's row, unless the run already holds that case with the same provenance (then return
-        False): concurrent writers never duplicate a row. A torn last line is cut off first."""
+        False): concurrent writers never duplicate a row. A torn last line is cut off first; a row its schema
+        refuses is a StoreError and is not written."""
+        problem = first_problem(RowSchema, dict(row))
+        if problem is not None:
+            raise StoreError(f"{shown(self.episodes_path)}: the row to append is invalid: {problem[1]}")
         line = (json.dumps(dict(row), separators=(",", ":")) + "\n").encode()
         identity = _identity(row)
         with self._locked(), _INDEX_LOCK, open(self.episodes_path, "a+b") as f:
@@ -184,18 +223,19 @@ class Run:
             f.write(line)  # "a" mode: at the end, whatever the position
             f.flush()
             os.fsync(f.fileno())
-            index[identity] = json.loads(line)
-            identity, offset, lines, _ = _INDEX[self.episodes_path.resolve()]
-            _INDEX[self.episodes_path.resolve()] = (identity, offset + len(line), lines + 1, index)
+            identity_of_file, offset, lines, _ = _INDEX[self.episodes_path.resolve()]
+            index[identity] = (lines + 1, json.loads(line))
+            _INDEX[self.episodes_path.resolve()] = (identity_of_file, offset + len(line), lines + 1, index)
         return True
 
     def find(self, case: Mapping, provenance: Mapping) -> dict | None:
         """The row of `case` played with `provenance`, if the run holds one."""
         try:
             with _INDEX_LOCK, open(self.episodes_path, "rb") as f:
-                return _index(f, self.episodes_path).get(_identity({**case, **provenance}))
+                found = _index(f, self.episodes_path).get(_identity({**case, **provenance}))
         except FileNotFoundError:
             return None
+        return None if found is None else found[1]
 
     def expected(self, row: Mapping, manifest: Mapping | None = None) -> dict:
         """The provenance the manifest asks of `row`'s case."""
@@ -228,7 +268,9 @@ def expected_provenance(manifest: Mapping, case: Mapping) -> dict:
     return out
 
 
-def _parse(data: bytes, path: Path, first_line: int = 1) -> list[dict]:
+def _parse(data: bytes, path: Path, first_line: int = 1) -> list[tuple[int, dict]]:
+    """The rows of `data` (lines of `path` from `first_line` on) with their line numbers, each checked against
+    the schema. A last line without its newline was never finished: reported and left out, whatever it holds."""
     lines = data.split(b"\n")
     rows = []
     for i, line in enumerate(lines):
@@ -240,24 +282,67 @@ def _parse(data: bytes, path: Path, first_line: int = 1) -> list[dict]:
             row = json.loads(line)
             if not isinstance(row, dict):
                 raise ValueError("not a JSON object")
-        except (ValueError, UnicodeDecodeError) as error:
+        except (ValueError, RecursionError) as error:  # UnicodeDecodeError is a ValueError
             if last:
-                warnings.warn(f"{path}: line {number} is torn (a writer stopped mid-row; {len(line)} bytes, "
+                warnings.warn(f"{shown(path)}: line {number} is torn (a writer stopped mid-row; {len(line)} bytes, "
                               f"{error}); its episode will be played again", TornRowWarning, stacklevel=3)  # fmt: skip
                 continue
-            raise StoreError(f"{path}: line {number} is not a JSON row ({error}); the file is damaged") from None
+            raise StoreError(f"{shown(path)}:{number}: not a JSON row ({error}); the file is damaged") from None
         if last:
-            warnings.warn(f"{path}: line {number} has no newline (a writer stopped before finishing it); its "
+            warnings.warn(f"{shown(path)}: line {number} has no newline (a writer stopped before finishing it); its "
                           f"episode will be played again", TornRowWarning, stacklevel=3)  # fmt: skip
             continue
-        rows.append(row)
+        problem = first_problem(RowSchema, row)
+        if problem is not None:
+            raise StoreError(f"{shown(path)}:{number}: {problem[1]}")
+        rows.append((number, row))
     return rows
 
 
+def _merge(seen: dict[str, tuple[int, dict]], rows: list[tuple[int, dict]], path: Path) -> list[tuple[int, dict]]:
+    """Add `rows` (line, row) to `seen` (identity → line, row) and return those added: a line repeated exactly is
+    read once; another row of a case and provenance already seen is a StoreError naming both lines (which one
+    counts would otherwise depend on their order)."""
+    added = []
+    for number, row in rows:
+        identity = _identity(row)
+        first = seen.get(identity)
+        if first is None:
+            seen[identity] = (number, row)
+            added.append((number, row))
+        elif first[1] != row:
+            other = first[1]
+            fields = sorted(k for k in other.keys() | row.keys() if other.get(k) != row.get(k))
+            differ = ", ".join(k if isinstance(row.get(k), list) else f"{k} {other.get(k)!r} vs {row.get(k)!r}"
+                               for k in fields)  # fmt: skip
+            case = " ".join(f"{k}={v!r}" for k, v in zip(CASE_KEYS, case_key(row), strict=True))
+            raise StoreError(f"{shown(path)}:{number}: case {case} has another result with the same provenance "
+                             f"at line {first[0]} ({differ}); keep one of the two lines")  # fmt: skip
+    return added
+
+
 def runs(root: str | os.PathLike, role: str | None = None) -> list[Run]:
-    """The runs of a store (with role `role`, if given), by name."""
-    found = [Run(root, p.parent.name) for p in sorted(Path(root).glob("runs/*/manifest.json"))]
+    """The runs of a store (with role `role`, if given), by name. A run folder whose episodes have no manifest
+    beside them is a StoreError: its rows would vanish from every table without a word."""
+    for orphan in sorted(Path(root).glob("runs/*/episodes.jsonl")):
+        if not (orphan.parent / "manifest.json").is_file():
+            raise StoreError(f"{shown(orphan)}: its run has episodes and no manifest.json; restore the manifest or "
+                             f"move the folder out of {shown(Path(root) / 'runs')}")  # fmt: skip
+    found = []
+    for path in sorted(Path(root).glob("runs/*/manifest.json")):
+        try:
+            found.append(Run(root, path.parent.name))
+        except StoreError as error:
+            raise StoreError(f"{shown(path.parent)}: {error}") from None
     return [r for r in found if role is None or r.manifest()["role"] == role]
+
+
+def check_store(root: str | os.PathLike) -> None:
+    """Read every run of the store at `root` through its schema (a StoreError naming the file and line otherwise):
+    what a command that reads or extends the store can call before any work starts."""
+    for run in runs(root):
+        run.manifest()
+        run.rows()
 
 
 def evaluation_rows(root: str | os.PathLike) -> list[dict]:
@@ -276,9 +361,9 @@ def evaluation_rows(root: str | os.PathLike) -> list[dict]:
     return out
 
 
-#: episodes file → ((device, inode), bytes read, lines read, its rows by identity): a process reads only what others
-#: added since, and starts over when the file was replaced.
-_INDEX: dict[Path, tuple[tuple[int, int], int, int, dict[str, dict]]] = {}
+#: episodes file → ((device, inode), bytes read, lines read, its (line, row) by identity): a process reads only what
+#: others added since, and starts over when the file was replaced.
+_INDEX: dict[Path, tuple[tuple[int, int], int, int, dict[str, tuple[int, dict]]]] = {}
 #: Guards `_INDEX` between this process's threads.
 _INDEX_LOCK = threading.Lock()
 
@@ -287,7 +372,7 @@ def _identity(row: Mapping) -> str:
     return json.dumps([case_key(row), provenance_of(row)], sort_keys=True)
 
 
-def _index(f, path: Path, truncate: bool = False) -> dict[str, dict]:
+def _index(f, path: Path, truncate: bool = False) -> dict[str, tuple[int, dict]]:
     """The rows of the open file `f` by identity (read incrementally); with `truncate` (under the lock), a torn
     last line is cut off."""
     key = path.resolve()
@@ -300,7 +385,8 @@ def _index(f, path: Path, truncate: bool = False) -> dict[str, dict]:
     f.seek(offset)
     data = f.read()
     intact = data.rfind(b"\n") + 1
-    index = {**index, **{_identity(r): r for r in _parse(data[:intact], path, first_line=lines + 1)}}
+    index = dict(index)
+    _merge(index, _parse(data[:intact], path, first_line=lines + 1), path)
     lines += data[:intact].count(b"\n")
     if truncate and intact < len(data):  # only under the lock is an unfinished line known to be torn
         _parse(data[intact:], path, first_line=lines + 1)  # reports it

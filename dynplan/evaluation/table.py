@@ -151,11 +151,8 @@ def render_compact(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_table(rows: list[dict], results_dir: str | os.PathLike) -> tuple[Path, Path]:
-    """Write table1.json and table1.md into `results_dir` (a pure function of `rows`: the same rows write the same
-    bytes)."""
-    results_dir = Path(results_dir)
-    json_path = write_bytes_atomic(results_dir / "table1.json", (json.dumps(rows, indent=1) + "\n").encode())
+def table_files(rows: list[dict]) -> tuple[str, str]:
+    """The text of table1.json and of table1.md for `rows` (a pure function: the same rows, the same text)."""
     text = (
         "# Table 1: MCTS agents over the same recorded episodes\n\n"
         "Built from the evaluation runs of the results store (`runs/*/manifest.json` with role `evaluation`; "
@@ -165,5 +162,13 @@ def write_table(rows: list[dict], results_dir: str | os.PathLike) -> tuple[Path,
         "timeouts / deaths, and steps (mean ± std over the episodes not died). Speeds: 2× = 1.0 px/step (T = 203), "
         "1× = 0.5 px/step (T = 407).\n\n" + render_markdown(rows)
     )
-    md_path = write_bytes_atomic(results_dir / "table1.md", text.encode())
+    return json.dumps(rows, indent=1) + "\n", text
+
+
+def write_table(rows: list[dict], results_dir: str | os.PathLike) -> tuple[Path, Path]:
+    """Write table1.json and table1.md into `results_dir`, each atomically (`table_files`)."""
+    results_dir = Path(results_dir)
+    json_text, md_text = table_files(rows)
+    json_path = write_bytes_atomic(results_dir / "table1.json", json_text.encode())
+    md_path = write_bytes_atomic(results_dir / "table1.md", md_text.encode())
     return json_path, md_path

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dynplan.env.config import FREE, GOAL_VALUE, obstacle_classes
+
 FORMAT = "dynplan.episode"
 FORMAT_VERSION = "1"
 METADATA_NAME = "dynplan"
@@ -79,6 +81,12 @@ SEARCH_JSON_SCHEMA = {
     },
     "required": ["t", "action", "visits", "q", "prior", "value", "goal", "search_ms"],
 }
+
+
+def pixel_values(width: int) -> dict[str, int]:
+    """The values a world frame `width` pixels wide may hold, by name: free road, the goal and each obstacle class
+    (the frames store's `pixel_values` attribute)."""
+    return {"free": FREE, "goal": GOAL_VALUE, **{c.name: c.value for c in obstacle_classes(width)}}
 
 
 def log_time(t: int) -> int:

@@ -40,6 +40,7 @@ from dynplan.logs.format import (
     TOPIC_GOAL,
     TOPIC_IMAGINED,
     AgentTrack,
+    pixel_values,
 )
 
 
@@ -202,35 +203,103 @@ def read_episode_log(path: str | os.PathLike) -> EpisodeLog:
         seed, n_frames = int(meta["seed"]), int(meta["n_frames"])
         height, width = int(meta["height"]), int(meta["width"])
         agent_start = np.array(json.loads(meta["agent_start"]), dtype=np.float64)
-    except (KeyError, ValueError, ConfigError) as error:
+    except (KeyError, ValueError, TypeError, ConfigError) as error:
         raise LogError(path, f"bad '{METADATA_NAME}' metadata: {error}") from None
+    if (height, width) != (config.height, config.width) or n_frames < 1 or agent_start.shape != (2,):
+        raise LogError(path, f"bad '{METADATA_NAME}' metadata: height {height}, width {width}, n_frames {n_frames} "
+                             f"and agent_start {meta['agent_start']} do not describe an episode of its config "
+                             f"({config.height}×{config.width}, at least 1 frame, a start [y, x])")  # fmt: skip
 
+    frames, goal = _world_topics(scan, config, n_frames, (height, width))
+    agent = _agent_track(scan) if TOPIC_AGENT_POSE in listing.topics else None
+    imagined = _imagined(scan, height, width) if TOPIC_IMAGINED in listing.topics else None
+    return EpisodeLog(path, meta, config, seed, frames, goal, agent_start, agent, imagined)
+
+
+def _world_topics(scan: _Scan, config: RoadConfig, n_frames: int, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """The world's frames (T, H, W) and goal track (T, 2), once each topic is found to hold frames 0 … T−1 in
+    order, at their log times, with frames of the log's size holding only the world's pixel values."""
+    path, (height, width) = scan.listing.path, shape
     images = _decode(scan, TOPIC_FRAME, SCHEMA_FRAME)
     goals = _decode(scan, TOPIC_GOAL, SCHEMA_POSE)
+    for topic in (TOPIC_FRAME, TOPIC_GOAL):
+        problem = _order_problem(scan.messages.get(topic, []))
+        if problem:
+            raise LogError(path, f"{topic} {problem}")
     if len(images) != n_frames or len(goals) != n_frames:
         raise LogError(path, f"has {len(images)} frames and {len(goals)} goal poses; metadata says {n_frames}")
-    bad = next(
-        (i for i, im in enumerate(images) if (im.height, im.width, im.encoding) != (height, width, "mono8")), None
-    )
-    if bad is not None:
-        im = images[bad]
-        raise LogError(path, f"frame {bad} is {im.height}×{im.width} {im.encoding}, expected {height}×{width} mono8")
+    for t, im in enumerate(images):
+        if (im.height, im.width, im.encoding, im.step, len(im.data)) != (height, width, "mono8", width, height * width):
+            raise LogError(path, f"{TOPIC_FRAME} message {t} is {im.height}×{im.width} {im.encoding} (step {im.step}, "
+                                 f"{len(im.data)} bytes), expected {height}×{width} mono8 (step {width}, "
+                                 f"{height * width} bytes)")  # fmt: skip
     frames = np.frombuffer(b"".join(im.data for im in images), np.uint8).reshape(n_frames, height, width)[:, ::-1]
+    values = sorted(set(pixel_values(config.width).values()))
+    allowed = np.zeros(256, dtype=bool)
+    allowed[values] = True
+    outside = ~allowed[frames]
+    if outside.any():
+        t, y, x = (int(i) for i in np.argwhere(outside)[0])
+        raise LogError(path, f"{TOPIC_FRAME} message {t} has pixel value {frames[t, y, x]} at (y {y}, x {x}); "
+                             f"the world's pixel values are {', '.join(map(str, values))}")  # fmt: skip
     goal = np.array([(g.pose.position.y, g.pose.position.x) for g in goals], dtype=np.float64)
-    agent = _agent_track(scan) if TOPIC_AGENT_POSE in listing.topics else None
-    imagined = None
-    if TOPIC_IMAGINED in listing.topics:
-        strips = _decode(scan, TOPIC_IMAGINED, SCHEMA_FRAME)
-        records = scan.messages[TOPIC_IMAGINED]
-        imagined = {
-            int((r.log_time - EPOCH_NS) // FRAME_PERIOD_NS): np.frombuffer(im.data, np.uint8)
-            .reshape(im.height, im.width)[::-1]
-            .reshape(im.height, im.width // width, width)
-            .transpose(1, 0, 2)
-            .copy()
-            for r, im in zip(records, strips, strict=True)
-        }
-    return EpisodeLog(path, meta, config, seed, np.ascontiguousarray(frames), goal, agent_start, agent, imagined)
+    if not np.isfinite(goal).all():
+        raise LogError(path, f"{TOPIC_GOAL} message {int(np.argwhere(~np.isfinite(goal))[0, 0])} is not finite")
+    return np.ascontiguousarray(frames), goal
+
+
+def _order_problem(records: list[Message]) -> str | None:
+    """What is wrong with the order of a world topic's messages (None: message t is frame t, by its sequence
+    number and by its log and publish times, for every t)."""
+    times = np.fromiter((r.log_time for r in records), np.int64, len(records))
+    published = np.fromiter((r.publish_time for r in records), np.int64, len(records))
+    if (published != times).any():
+        i = int(np.flatnonzero(published != times)[0])
+        return f"message {i} has publish time {published[i]} ns, not its log time {times[i]} ns"
+    off_clock = (times - EPOCH_NS) % FRAME_PERIOD_NS != 0
+    if off_clock.any():
+        i = int(np.flatnonzero(off_clock)[0])
+        return f"message {i} has log time {times[i]} ns, off the frame clock (epoch {EPOCH_NS} + t · {FRAME_PERIOD_NS})"
+    sequence = np.fromiter((r.sequence for r in records), np.int64, len(records))
+    for label, values in (("sequence", sequence), ("the log time of frame", (times - EPOCH_NS) // FRAME_PERIOD_NS)):
+        problem = _sequence_problem(label, values)
+        if problem:
+            return problem
+    return None
+
+
+def _sequence_problem(label: str, values: np.ndarray) -> str | None:
+    """Why `values` is not 0, 1, 2, …: a step back (out of order), a repeat, or a gap (frames missing)."""
+    if len(values) == 0:
+        return None
+    step = np.diff(values)
+    for bad, what in ((step < 0, "frames out of order"), (step == 0, "a repeated frame"), (step > 1, "missing")):
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0]) + 1
+            before, now = int(values[i - 1]), int(values[i])
+            what = what if what != "missing" else _missing(before + 1, now - 1)
+            return f"message {i} has {label} {now} after {before} ({what})"
+    if values[0] != 0:
+        return f"message 0 has {label} {int(values[0])}, expected 0 ({_missing(0, int(values[0]) - 1)})"
+    return None
+
+
+def _missing(first: int, last: int) -> str:
+    return f"frame {first} missing" if first == last else f"frames {first}–{last} missing"
+
+
+def _imagined(scan: _Scan, height: int, width: int) -> dict[int, np.ndarray]:
+    """A replay's predicted frames per decision: {t: (k, H, W)}, each strip k frames of the log's size."""
+    strips = _decode(scan, TOPIC_IMAGINED, SCHEMA_FRAME)
+    imagined = {}
+    for i, (record, im) in enumerate(zip(scan.messages[TOPIC_IMAGINED], strips, strict=True)):
+        if im.height != height or im.width % width or not im.width or len(im.data) != im.height * im.width:
+            raise LogError(scan.listing.path, f"{TOPIC_IMAGINED} message {i} is {im.height}×{im.width} with "
+                                              f"{len(im.data)} bytes, expected {height}×(k·{width}) mono8")  # fmt: skip
+        strip = np.frombuffer(im.data, np.uint8).reshape(im.height, im.width)[::-1]
+        t = int((record.log_time - EPOCH_NS) // FRAME_PERIOD_NS)
+        imagined[t] = strip.reshape(height, im.width // width, width).transpose(1, 0, 2).copy()
+    return imagined
 
 
 def _agent_track(scan: _Scan) -> AgentTrack:

@@ -18,7 +18,7 @@ from dynplan.models.world_model import LearnedWorldModel, load_world_model
 
 def load_vqvae(path: str | os.PathLike | None = None, model: str = "default") -> VQVAE:
     """A trained VQ-VAE: from `path`, or (None) the committed checkpoint of the preset `model` ("default" or
-    "paper"), in eval mode (loaded once per content of the file)."""
+    "paper"), in eval mode; checked first (`checkpoint.verify`) and loaded once per content of the file."""
     if path is None:
         world_model_spec(model)  # an unknown configuration is named with the known ones
         path = pretrained_path("vqvae", model)
@@ -27,6 +27,7 @@ def load_vqvae(path: str | os.PathLike | None = None, model: str = "default") ->
                 f"{path}: no pretrained VQ-VAE '{model}' in this checkout; train one with "
                 f"`python -m flows.train vqvae --model {model}` and pass its path"
             )
+        return cached("vqvae", path, model)
     return cached("vqvae", path)
 
 

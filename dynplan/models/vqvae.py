@@ -8,6 +8,7 @@ channels 42, 32, 16, 16, strides 2, 2, 2, 1 (6 × 6 codes), K = 512, DMoL with 1
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Literal
 
@@ -196,14 +197,24 @@ class VQVAE(nn.Module):
         change what the trained model computes: docs/experiments.md, tokenizers) are left out, as is the codebook's
         running statistics, and the weights must fit the architecture the rest builds (a RuntimeError naming the
         tensors otherwise). A codebook recorded with a leading axis of one is that codebook."""
-        model = cls(VQVAEConfig(**{k: v for k, v in config.items() if k in VQVAEConfig.model_fields}))
-        own = model.state_dict()
+        model = cls(cls.recorded_config(config))
+        model.load_state_dict(cls.recorded_weights(weights, model.state_dict()))
+        return model
+
+    @staticmethod
+    def recorded_config(config: dict) -> VQVAEConfig:
+        """The config a checkpoint records, less the settings this code does not have (training-only ones)."""
+        return VQVAEConfig(**{k: v for k, v in config.items() if k in VQVAEConfig.model_fields})
+
+    @staticmethod
+    def recorded_weights(weights: dict, own: Collection[str]) -> dict:
+        """A checkpoint's weights as a model whose state has the keys `own` takes them: the codebook's running
+        statistics (training-only) left out, a codebook recorded with a leading axis of one as that codebook."""
         weights = {k: v for k, v in weights.items() if k in own or not k.startswith("quantizer.")}
         embed = weights.get("quantizer.embed")
-        if embed is not None and embed.dim() == 3 and embed.shape[0] == 1:
+        if isinstance(embed, torch.Tensor) and embed.dim() == 3 and embed.shape[0] == 1:
             weights["quantizer.embed"] = embed[0]
-        model.load_state_dict(weights)
-        return model
+        return weights
 
     def forward(self, frames: torch.Tensor) -> VQVAEOutput:
         """uint8 frames (B, H, W) → reconstruction parameters, codes and the training losses."""

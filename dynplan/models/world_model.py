@@ -32,11 +32,23 @@ from dynplan.models.chain import ChainSpec, chain
 from dynplan.models.checkpoint import CheckpointError, pretrained_path
 from dynplan.models.device import check_device, one_thread
 from dynplan.models.encoding import encode_contexts
+from dynplan.models.likelihood import WORLD_VALUES
 from dynplan.models.pixelcnn import ConditionalPixelCNN
-from dynplan.models.registry import caution_for
+from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
 from dynplan.models.streams import observation_stream
 from dynplan.models.vqvae import VQVAE
 from dynplan.planning.forward import ForwardModel, Prediction
+
+#: The most frames ahead one prediction may ask for: more than any episode of the paper's 48 × 48 world lasts (407
+#: frames for the 1× agent), so no planner meets it; it bounds what one call may cost.
+MAX_HORIZON = 512
+
+#: The most decoder samples, and the most sampled futures, one model merges (as an agent's spec allows).
+MAX_DRAWS = 64
+
+#: Which pixel values are the world's, by value (index 256 stands for any value outside [0, 255]).
+_WORLD_PIXEL = np.zeros(257, bool)
+_WORLD_PIXEL[list(WORLD_VALUES)] = True
 
 
 @dataclass(frozen=True)
@@ -73,8 +85,9 @@ class LearnedWorldModel(ForwardModel):
         if tokenizer.config.codebook_size != prior.config.codebook_size:
             raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
                              f"{tokenizer.config.codebook_size}")  # fmt: skip
-        if samples < 0 or futures < 0:
-            raise ValueError(f"samples and futures must be >= 0, got {samples}, {futures}")
+        for name, value in (("samples", samples), ("futures", futures)):
+            if isinstance(value, bool) or not isinstance(value, int | np.integer) or not 0 <= value <= MAX_DRAWS:
+                raise ValueError(f"{name} must be an integer in [0, {MAX_DRAWS}]; got {value!r}")
         self.caution = Caution() if caution is None else caution
         self.caution.check_fits(tokenizer.config.local, tokenizer.config.name)
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
@@ -106,7 +119,35 @@ class LearnedWorldModel(ForwardModel):
     @torch.inference_mode()
     def predict_codes(self, observed: np.ndarray, k: int) -> torch.Tensor:
         """(k, h, w) code grids of the greedy future t+1 … t+k from the last `context` observed frames."""
+        observed, k = self.checked(observed, k, "predict_codes")
         return chain(self.prior, self.encode_context(observed)[None], [k], self.chain_spec())[0][0]
+
+    def checked(self, observed: np.ndarray, k: int, method: str = "predict", index: str = "") -> tuple[np.ndarray, int]:
+        """The frames this model reads of `observed` (its last `context`), as uint8, and the horizon `k`, after
+        checking them: `observed` (t+1, H, W) frames of the tokenizer's size holding world pixel values, `k` an
+        integer in [1, MAX_HORIZON]. A ValueError otherwise, naming the argument (`index`: its episode in a batch)
+        and what it accepts."""
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 1 <= k <= MAX_HORIZON:
+            horizon = f"ks{index}" if index else "k"
+            raise ValueError(f"{method}: {horizon} must be an integer in [1, {MAX_HORIZON}] (frames ahead); got {k!r}")
+        height, width = self.tokenizer.config.height, self.tokenizer.config.width
+        name, expect = f"observed{index}", f"(t+1, {height}, {width}) frames of world pixel values {WORLD_VALUES}"
+        if not isinstance(observed, np.ndarray):
+            raise ValueError(f"{method}: {name} must be a numpy array of {expect}; got {type(observed).__name__}")
+        if observed.ndim != 3 or observed.shape[1:] != (height, width):
+            one = " (one frame is observed[None])" if observed.shape == (height, width) else ""
+            raise ValueError(f"{method}: {name} must be {expect}; got shape {observed.shape}{one}")
+        if len(observed) == 0:
+            raise ValueError(f"{method}: no frames observed: {name} must hold at least one of {expect}")
+        if not np.issubdtype(observed.dtype, np.integer):
+            raise ValueError(f"{method}: {name} must hold integer pixel values {WORLD_VALUES}; got {observed.dtype}")
+        read = observed[-self.context :]
+        bad = ~_WORLD_PIXEL[read if read.dtype == np.uint8 else np.where((read < 0) | (read > 255), 256, read)]
+        if bad.any():
+            f, row, col = (int(i) for i in np.argwhere(bad)[0])
+            raise ValueError(f"{method}: {name} frame {len(observed) - len(read) + f} holds {read[f, row, col]} at "
+                             f"row {row}, column {col}, which is not a world pixel value {WORLD_VALUES}")  # fmt: skip
+        return (read if read.dtype == np.uint8 else read.astype(np.uint8)), int(k)
 
     def cost(self, k: int) -> float:
         """The grids a k-frame prediction generates (the greedy chain and every future): how a shared batch's time
@@ -121,8 +162,10 @@ class LearnedWorldModel(ForwardModel):
     @torch.inference_mode()
     def predict(self, observed: np.ndarray, k: int) -> Prediction:
         """Frames t+1 … t+k: the greedy future's mid-point, merged with the model's decoder samples and with the
-        mid-points of its sampled futures, then its caution applied. The batch of one of `predict_batch`."""
-        return LearnedWorldModel.predict_batch([self], [observed], [k])[0]
+        mid-points of its sampled futures, then its caution applied. The batch of one of `predict_batch`.
+        `observed`: (t+1, H, W) world frames of the tokenizer's size; `k`: an integer in [1, MAX_HORIZON]."""
+        observed, k = self.checked(observed, k)
+        return LearnedWorldModel._predict_batch([self], [observed], [k])[0]
 
     @classmethod
     @torch.inference_mode()
@@ -133,8 +176,18 @@ class LearnedWorldModel(ForwardModel):
         (with its occupancy) per distinct observation, as long as the longest horizon asking for it; one set of
         decoder samples and one of sampled futures per distinct observation and model seed, as many as the most any
         model asks for; one decoding. A prediction does not depend on which others share its batch (up to float
-        summation order in the batched generation)."""
+        summation order in the batched generation). Each observation and horizon is checked as `predict`'s."""
         _check_batch(models, observed, ks)
+        if not models:
+            return []
+        checked = [m.checked(o, k, "predict_batch", f"[{e}]")
+                   for e, (m, o, k) in enumerate(zip(models, observed, ks, strict=True))]  # fmt: skip
+        return cls._predict_batch(models, [o for o, _ in checked], [k for _, k in checked])
+
+    @staticmethod
+    def _predict_batch(models: Sequence[LearnedWorldModel], observed: Sequence[np.ndarray],
+                       ks: Sequence[int]) -> list[Prediction]:  # fmt: skip
+        """`predict_batch` of arguments already checked."""
         first = models[0]
         obs = _Observations.of(encode_contexts(first.tokenizer, observed, first.context), ks)
         occupancy = any(m.caution.occupancy for m in models)
@@ -161,14 +214,12 @@ class LearnedWorldModel(ForwardModel):
 
 
 def _check_batch(models: Sequence[LearnedWorldModel], observed: Sequence[np.ndarray], ks: Sequence[int]) -> None:
-    """A ValueError unless the models share their weights and device and every episode has an observation and a
-    horizon of at least one frame."""
-    if any(m.batch_key != models[0].batch_key for m in models):
-        raise ValueError("predict_batch: the models differ in weights or device; group them by batch_key")
+    """A ValueError unless every episode has a model, an observation and a horizon, and the models share their
+    weights and device."""
     if not len(models) == len(observed) == len(ks):
         raise ValueError(f"predict_batch: {len(models)} models, {len(observed)} observations, {len(ks)} horizons")
-    if min(ks) < 1:
-        raise ValueError(f"predict_batch: every horizon must be >= 1, got {min(ks)}")
+    if any(m.batch_key != models[0].batch_key for m in models):
+        raise ValueError("predict_batch: the models differ in weights or device; group them by batch_key")
 
 
 def _groups(counts: Sequence[int], models: Sequence[LearnedWorldModel], ks: Sequence[int],
@@ -239,14 +290,16 @@ def world_model_paths(model: str, model_dir: str | os.PathLike | None = None) ->
 
 
 def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple:
-    """The (tokenizer, prior) in `paths`, loaded once per content of the files (see `checkpoint.cached`)."""
+    """The (tokenizer, prior) in `paths`, checked (`checkpoint.verify`: their tensors, values and model cards)
+    and loaded once per content of the files (see `checkpoint.cached`), and checked to be configuration
+    `model`'s (not another registered configuration's) and one world model."""
     missing = [str(p) for p in paths if not Path(p).exists()]
     if missing:
-        raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; train them with "
-                              f"`python -m flows.train vqvae|pixelcnn --model {model}` or the collect-train-eval "
-                              "flow")  # fmt: skip
-    tokenizer = checkpoint.cached(checkpoint.VQVAE_KIND, paths[0])
-    prior = checkpoint.cached(checkpoint.PIXELCNN_KIND, paths[1])
+        how = (f"train them with `python -m flows.train vqvae|pixelcnn --model {model}` or the collect-train-eval "
+               "flow" if model in WORLD_MODELS else f"configuration {model!r} is not registered")  # fmt: skip
+        raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; {how}")
+    tokenizer = checkpoint.cached(checkpoint.VQVAE_KIND, paths[0], model)
+    prior = checkpoint.cached(checkpoint.PIXELCNN_KIND, paths[1], model)
     if tokenizer.config.codebook_size != prior.config.codebook_size:
         raise CheckpointError(
             f"{paths[1]}: predicts {prior.config.codebook_size} code values, but the tokenizer {paths[0]} has "
@@ -259,9 +312,11 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
                      seed: int = 0, caution: Mapping[str, float] | None = None,
                      device: str = "cpu") -> LearnedWorldModel:  # fmt: skip
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
-    pretrained checkpoints of the configuration `model` ("default" or "paper"), with the configuration's own
-    caution (its registry entry) except where `caution` (field → value) overrides it. Weights are loaded once per
-    content and shared by every model built on them; `device` is where batched generation runs ("cuda" on a GPU)."""
+    pretrained checkpoints of the configuration `model` (a registered one: "default", "paper", …), with the
+    configuration's own caution (its registry entry) except where `caution` (field → value) overrides it. Weights
+    are checked, then loaded once per content and shared by every model built on them; `device` is where batched
+    generation runs ("cuda" on a GPU). A bad argument is a ValueError naming it."""
+    world_model_spec(model)  # an unknown configuration is named with the registered ones
     paths = world_model_paths(model) if path is None else (Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt")
     tokenizer, prior = world_model_parts(paths, model)
     return LearnedWorldModel(tokenizer, prior, samples, futures, seed, caution_for(model, caution), device)

@@ -7,7 +7,6 @@ check that the report exists. Everything it starts is stopped on the way out; lo
 
 from __future__ import annotations
 
-import argparse
 import os
 import socket
 import subprocess
@@ -17,6 +16,8 @@ import time
 import urllib.request
 from contextlib import ExitStack
 from pathlib import Path
+
+from dynplan.cli import CommandParser, run_command
 
 
 class DeploymentCheckError(RuntimeError):
@@ -97,7 +98,7 @@ def _stop(proc: subprocess.Popen) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m dynplan.pipeline.deployment_check", description=__doc__)
+    parser = CommandParser(prog="python -m dynplan.pipeline.deployment_check", description=__doc__)
     parser.add_argument("--preset", default="smoke", help="which deployment to trigger (default: smoke)")
     parser.add_argument("--out", help="working folder (default: a new temporary one)")
     args = parser.parse_args(argv)
@@ -110,4 +111,4 @@ def main(argv: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_command(main, "python -m dynplan.pipeline.deployment_check")

@@ -208,32 +208,18 @@ def _cpu(state):
 
 
 def warm_start(model: torch.nn.Module, path: str, kind: str) -> None:
-    """Start `model` from the weights of the checkpoint at `path`. Tensors of the same shape are copied; a tensor
-    grown along one dimension (a larger codebook) gets the old entries first and keeps its fresh ones after
-    them (unused codes). Anything else is a CheckpointError."""
-    source = checkpoint.load(path, kind)["model"]
+    """Start `model` from the weights of the checkpoint at `path`, checked first (`checkpoint.verify`). Tensors of
+    the same shape are copied; a tensor grown along one dimension (a larger codebook) gets the old entries first
+    and keeps its fresh ones after them (unused codes). Anything else is a CheckpointError
+    (`checkpoint.warm_weights`)."""
     target = model.state_dict()
-    if "code_sharpness" in target and "code_sharpness" not in source:  # from an uncalibrated decoder: scale 1
-        source = {**source, "code_sharpness": torch.ones_like(target["code_sharpness"])}
-    source = {k: v for k, v in source.items() if k != "code_sharpness" or k in target}
-    if set(source) != set(target):
-        differing = ", ".join(sorted(set(source) ^ set(target))[:4])
-        raise checkpoint.CheckpointError(
-            f"{path}: cannot start this run from it: the architecture differs (parameters {differing} …)"
-        )
+    shapes = {name: tuple(value.shape) for name, value in target.items()}
+    source = checkpoint.warm_weights(path, checkpoint.verify(path, kind), kind, shapes)
     with torch.no_grad():
         for name, value in source.items():
             into = target[name]
-            grown = (
-                [d for d in range(into.dim()) if into.shape[d] != value.shape[d]] if into.dim() == value.dim() else None
-            )
-            if grown == []:
-                into.copy_(value)
-            elif grown is not None and len(grown) == 1 and into.shape[grown[0]] > value.shape[grown[0]]:
-                into.narrow(grown[0], 0, value.shape[grown[0]]).copy_(value)
-            else:
-                raise checkpoint.CheckpointError(f"{path}: cannot start this run from it: the architecture differs "
-                                                 f"({name}: {tuple(value.shape)} vs {tuple(into.shape)})")  # fmt: skip
+            grown = [d for d in range(into.dim()) if into.shape[d] != value.shape[d]]
+            (into.narrow(grown[0], 0, value.shape[grown[0]]) if grown else into).copy_(value)
     model.load_state_dict(target)
 
 

@@ -1,0 +1,137 @@
+"""What every command shares: a parser whose errors are one line, option types that declare their valid range, and a
+runner that turns an error into one line and an interrupt into "interrupted" and exit status 130.
+
+Each option declares what it takes — a `Bounded` number, a `dynplan.paths.PathArgument` path, or argparse choices —
+so a bad value is refused while parsing, before any work, and a test can draw bad values from the declaration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import re
+import signal
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, NoReturn, get_args
+
+if TYPE_CHECKING:
+    from pydantic import BaseModel
+
+#: argparse's "argument --seed: " prefix, read as "--seed".
+_ARGUMENT = re.compile(r"^argument ([^:]+): ?")
+
+
+class CommandParser(argparse.ArgumentParser):
+    """An ArgumentParser whose usage errors are one line (`prog: error: …`, exit status 2) with no usage block."""
+
+    def error(self, message: str) -> NoReturn:
+        match = _ARGUMENT.match(message)
+        if match:  # "argument --seed: =-1 is invalid" → "--seed=-1 is invalid"
+            rest = message[match.end() :].lstrip()
+            name = match.group(1).split("/")[0]
+            message = f"{name}{'' if rest.startswith('=') else ' '}{rest}"
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+@dataclass(frozen=True)
+class Bounded:
+    """An argparse `type` for a finite `kind` number between `low` and `high` (None: no bound), each bound included
+    unless `open_low` / `open_high` says it is excluded."""
+
+    kind: type = int
+    low: float | None = None
+    high: float | None = None
+    open_low: bool = False
+    open_high: bool = False
+
+    def __call__(self, text: str) -> int | float:
+        noun = "an integer" if self.kind is int else "a number"
+        try:
+            value = self.kind(text)
+        except (TypeError, ValueError):
+            raise argparse.ArgumentTypeError(f" {text!r} is not {noun}") from None
+        if isinstance(value, float) and not math.isfinite(value):
+            raise argparse.ArgumentTypeError(f"={text} is invalid; it must be a finite number")
+        if not self.contains(value):
+            raise argparse.ArgumentTypeError(f"={text} is invalid; valid range {self.range}")
+        return value
+
+    def contains(self, value: float) -> bool:
+        above = self.low is None or value > self.low or (value == self.low and not self.open_low)
+        below = self.high is None or value < self.high or (value == self.high and not self.open_high)
+        return above and below
+
+    @property
+    def range(self) -> str:
+        left = "(" if self.open_low or self.low is None else "["
+        right = ")" if self.open_high or self.high is None else "]"
+        return f"{left}{'-inf' if self.low is None else self.low}, {'inf' if self.high is None else self.high}{right}"
+
+    @property
+    def __name__(self) -> str:
+        return self.kind.__name__
+
+
+def bounded(model: type[BaseModel], name: str) -> Bounded:
+    """The `Bounded` type of a config field: its type and its bounds, as the config declares them (an exclusive bound
+    of an integer field becomes the next integer)."""
+    field = model.model_fields[name]
+    kind = float if float in (field.annotation, *get_args(field.annotation)) else int
+    bounds: dict = {}
+    for bound in field.metadata:
+        for attribute, side, excluded in (("ge", "low", False), ("gt", "low", True), ("le", "high", False),
+                                          ("lt", "high", True)):  # fmt: skip
+            value = getattr(bound, attribute, None)
+            if value is not None and kind is int:
+                bounds[side] = value + (0 if not excluded else 1 if side == "low" else -1)
+            elif value is not None:
+                bounds[side], bounds[f"open_{side}"] = value, excluded
+    return Bounded(kind, **bounds)
+
+
+def _one_line(error: BaseException) -> str:
+    """An error as one line: an OSError names its file."""
+    if isinstance(error, OSError) and error.filename is not None:
+        return f"{error.filename}: {error.strerror or error}"
+    text = " ".join(str(error).split()) or type(error).__name__
+    return text if isinstance(error, ValueError) else f"{type(error).__name__}: {text}"
+
+
+def _program() -> str:
+    """How the running command was started, e.g. "python -m flows.collect"."""
+    argv = getattr(sys, "orig_argv", sys.argv)
+    return f"python -m {argv[argv.index('-m') + 1]}" if "-m" in argv[:-1] else os.path.basename(sys.argv[0])
+
+
+def _interrupted_while_loading(signum: int, frame: object) -> None:
+    print(f"{_program()}: interrupted", file=sys.stderr, flush=True)
+    os._exit(130)  # nothing is written while a command loads its modules
+
+
+def interrupt_while_loading() -> None:
+    """Under `python -m`, an interrupt while the command's modules load is "interrupted" and exit status 130, not a
+    traceback of the import machinery. `run_command` restores Python's own handler when the command starts."""
+    if sys.argv[:1] == ["-m"] and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _interrupted_while_loading)
+
+
+def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[str] | None = None) -> Any:
+    """Run a command's `main`: a ValueError (bad input met before or during the work) is one line and exit status 2,
+    any other error one line and exit status 1 (the traceback with `--debug`), an interrupt "interrupted" and 130."""
+    debug = "--debug" in (sys.argv[1:] if argv is None else argv)
+    if signal.getsignal(signal.SIGINT) is _interrupted_while_loading:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return main(argv)
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; run it again to resume", file=sys.stderr)
+        raise SystemExit(130) from None
+    except Exception as error:
+        if debug:
+            raise
+        hint = "" if isinstance(error, ValueError) else " (run with --debug for the traceback)"
+        print(f"{prog}: error: {_one_line(error)}{hint}", file=sys.stderr)
+        raise SystemExit(2 if isinstance(error, ValueError) else 1) from None

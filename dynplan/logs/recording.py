@@ -1,0 +1,67 @@
+"""Whether a log is what its seed records. dynplan's recordings are reproducible byte for byte from their seed and
+world config (about 20 ms a log), so a log that says dynplan recorded it (its `dynplan` record carries
+`dynplan_version`) is checked against a fresh recording: byte for byte when this version wrote it, in its content
+(metadata, frames, goal track, agent start) when another version did, whose encoder may differ. A log of one's own
+world (no `dynplan_version`) is read for what it is.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from dynplan.env.road import World, generate_world
+from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
+from dynplan.logs.writer import episode_metadata, write_episode_log
+
+
+def fresh_recording(world: World, n_frames: int, name: str = "episode.mcap") -> bytes:
+    """The bytes dynplan writes for the log of `world` over `n_frames` frames."""
+    with tempfile.TemporaryDirectory(prefix="dynplan-record-") as folder:
+        return write_episode_log(Path(folder, name), world, n_frames=n_frames).read_bytes()
+
+
+def recording_problem(path: str | os.PathLike, log: EpisodeLog | None, world: World, fresh: bytes) -> str | None:
+    """How the log at `path` (read as `log`; None: unreadable) differs from `fresh`, the recording of `world`; None
+    when it is that recording."""
+    if Path(path).read_bytes() == fresh:
+        return None
+    if log is None:
+        return "it is not a readable log"
+    if log.agent is not None or log.imagined is not None:
+        return "it records a planner's episode, not only the world"
+    expected = episode_metadata(world, log.n_frames, "world")
+    if log.metadata.get("dynplan_version") == expected["dynplan_version"]:
+        return f"this dynplan ({expected['dynplan_version']}) records seed {world.seed} in other bytes"
+    ours = {k: v for k, v in expected.items() if k != "dynplan_version"}
+    theirs = {k: v for k, v in log.metadata.items() if k != "dynplan_version"}
+    if theirs != ours:
+        keys = sorted(k for k in set(ours) | set(theirs) if ours.get(k) != theirs.get(k))
+        return f"its record differs from the seed's in {', '.join(keys)}"
+    for name, (a, b) in {"frames": (log.frames, world.frames[: log.n_frames]),
+                         "goal track": (log.goal, world.goal[: log.n_frames]),
+                         "agent start": (log.agent_start, world.agent_start)}.items():  # fmt: skip
+        if not np.array_equal(a, b):
+            return f"its {name} differ from the seed's"
+    return None
+
+
+def check_recorded(log: EpisodeLog) -> EpisodeLog:
+    """`log`, if it is what its seed records or a log of one's own world; otherwise a LogError naming the file."""
+    if "dynplan_version" not in log.metadata or log.metadata.get("kind") != "world":
+        return log  # one's own episode, or a replay (which records a planner, not only a seed)
+    world = generate_world(log.config, log.seed, log.n_frames)
+    problem = recording_problem(log.path, log, world, fresh_recording(world, log.n_frames, log.path.name))
+    if problem:
+        again = f"python -m flows.collect --out {log.path.parent} --seed {log.seed} --episodes 1"
+        raise LogError(log.path, f"is not what seed {log.seed} records: {problem} (the file is damaged; record it "
+                       f"again: {again})")  # fmt: skip
+    return log
+
+
+def read_recorded_log(path: str | os.PathLike) -> EpisodeLog:
+    """`read_episode_log(path)`, checked with `check_recorded`: what a planner replays is what its seed records."""
+    return check_recorded(read_episode_log(path))
