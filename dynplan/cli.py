@@ -20,6 +20,12 @@ from typing import TYPE_CHECKING, Any, NoReturn, get_args
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
+
+class InputError(ValueError):
+    """An input a command or the API cannot use (a value, a path, a file's content); its message is one line naming
+    it. `run_command` reports it as bad input (exit status 2); any other error is unexpected (exit status 1)."""
+
+
 #: argparse's "argument --seed: " prefix, read as "--seed".
 _ARGUMENT = re.compile(r"^argument ([^:]+): ?")
 
@@ -97,7 +103,7 @@ def _one_line(error: BaseException) -> str:
     if isinstance(error, OSError) and error.filename is not None:
         return f"{error.filename}: {error.strerror or error}"
     text = " ".join(str(error).split()) or type(error).__name__
-    return text if isinstance(error, ValueError) else f"{type(error).__name__}: {text}"
+    return text if isinstance(error, InputError) else f"{type(error).__name__}: {text}"
 
 
 def _program() -> str:
@@ -114,13 +120,17 @@ def _interrupted_while_loading(signum: int, frame: object) -> None:
 def interrupt_while_loading() -> None:
     """Under `python -m`, an interrupt while the command's modules load is "interrupted" and exit status 130, not a
     traceback of the import machinery. `run_command` restores Python's own handler when the command starts."""
-    if sys.argv[:1] == ["-m"] and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+    argv = getattr(sys, "orig_argv", [])
+    target = argv[argv.index("-m") + 1] if "-m" in argv[:-1] else ""
+    ours = target.split(".")[0] in ("dynplan", "flows")
+    if sys.argv[:1] == ["-m"] and ours and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, _interrupted_while_loading)
 
 
 def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[str] | None = None) -> Any:
-    """Run a command's `main`: a ValueError (bad input met before or during the work) is one line and exit status 2,
-    any other error one line and exit status 1 (the traceback with `--debug`), an interrupt "interrupted" and 130."""
+    """Run a command's `main`: an `InputError` (bad input met before or during the work) is one line and exit status
+    2, any other error one line and exit status 1 (the traceback with `--debug`), an interrupt "interrupted" and
+    130."""
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
     if signal.getsignal(signal.SIGINT) is _interrupted_while_loading:
         signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -132,6 +142,6 @@ def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[s
     except Exception as error:
         if debug:
             raise
-        hint = "" if isinstance(error, ValueError) else " (run with --debug for the traceback)"
+        hint = "" if isinstance(error, InputError) else " (run with --debug for the traceback)"
         print(f"{prog}: error: {_one_line(error)}{hint}", file=sys.stderr)
-        raise SystemExit(2 if isinstance(error, ValueError) else 1) from None
+        raise SystemExit(2 if isinstance(error, InputError) else 1) from None

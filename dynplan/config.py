@@ -16,8 +16,10 @@ from typing import Any, ClassVar
 from pydantic import BaseModel, ConfigDict, ValidationError, model_serializer
 from pydantic.fields import FieldInfo
 
+from dynplan.cli import InputError
 
-class ConfigError(ValueError):
+
+class ConfigError(InputError):
     """A configuration value is invalid; the message names the field and what it accepts."""
 
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from types import ModuleType
 
+from dynplan.cli import InputError
 
-class MissingExtra(RuntimeError):
+
+class MissingExtra(InputError, RuntimeError):
     """The optional package an option needs is not installed."""
 
 

@@ -16,8 +16,10 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
+from dynplan.cli import InputError
 
-class PathError(ValueError, argparse.ArgumentTypeError):
+
+class PathError(InputError, argparse.ArgumentTypeError):
     """A path cannot be used as what it is given for; the message names the parameter, the path and why."""
 
 
@@ -110,7 +112,7 @@ def check_input(value: str | os.PathLike, parameter: str, kind: PathKind) -> Pat
         raise PathError(f"{parameter} {shown}: is {_what(status.st_mode)}, not a folder; give the path of a folder")
     if kind.shape == "file" and not stat.S_ISREG(status.st_mode):
         raise PathError(f"{parameter} {shown}: is {_what(status.st_mode)}, not a regular file; give the path of a file")
-    if kind.suffix and path.suffix != kind.suffix:
+    if kind.suffix and Path(shown).suffix != kind.suffix:  # as given: a link may point at a blob without one
         raise PathError(f"{parameter} {shown}: is not a {kind.suffix} file")
     wanted = os.R_OK | (os.X_OK if kind.shape == "folder" else 0)
     if not os.access(path, wanted):

@@ -238,11 +238,6 @@ def main(argv: Sequence[str] | None = None) -> PlayState:
         import pygame
     except ImportError:
         parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
-    try:
-        state = build_state(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
-                            not args.no_imagination)  # fmt: skip
-    except (LogError, CheckpointError, ValueError) as error:
-        parser.exit(2, f"python -m flows.play: error: {error}\n")
     script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
     for key in script or ():
         try:
@@ -251,6 +246,11 @@ def main(argv: Sequence[str] | None = None) -> PlayState:
                 pygame.key.key_code(key)
         except ValueError:
             parser.error(f"--script: {key!r} is not a key name (e.g. up, left, space, p, escape)")
+    try:
+        state = build_state(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
+                            not args.no_imagination)  # fmt: skip
+    except (LogError, CheckpointError, ValueError) as error:
+        parser.exit(2, f"python -m flows.play: error: {error}\n")
     if not args.live:
         return play(state, args.scale, args.fps, args.watch, script, args.record, screenshot=args.screenshot)
     try:

@@ -57,7 +57,7 @@ def checked_dask_address(cli_value: str | None = None, timeout_s: float = 5.0) -
     if not address:
         return None
     source = "--dask-address" if cli_value else f"${DASK_ADDRESS_ENV}"
-    match = re.fullmatch(r"(?:tcp://)?(\[[^\]]+\]|[^:/\s]+):(\d{1,5})", address)
+    match = re.fullmatch(r"(?:(?:tcp|tls)://)?(\[[^\]]+\]|[^:/\s]+):(\d{1,5})", address)
     if match is None or not 0 < int(match.group(2)) < 65536:
         raise ValueError(f"{source} {address!r}: not a Dask scheduler address; give tcp://HOST:PORT")
     host, port = match.group(1).strip("[]"), int(match.group(2))

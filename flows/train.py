@@ -203,7 +203,7 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
         raise ConfigError(f"--set: {error}") from None
     if args.init_from:
         check_init_from(args.init_from, args.stage, config.model_dump())
-    inputs = (args.store, *([args.init_from] if args.init_from else []))
+    inputs = (args.store,)  # a run folder is new: --init-from may be a checkpoint under --out
     check_output(args.out, "--out", "folder", inputs=inputs)
     if args.tensorboard:
         check_output(args.tensorboard, "--tensorboard", "folder", inputs=inputs)

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from unittest import mock
 
+import numpy as np
 import pytest
 import torch
 from hypothesis import HealthCheck, assume, given, settings
@@ -44,6 +45,7 @@ from dynplan.cli import CommandParser, run_command
 from dynplan.data.build import build_frame_store
 from dynplan.data.collect import record_episode
 from dynplan.data.store import inspect_for_store
+from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.models import checkpoint
 from dynplan.models.checkpoint import pretrained_path
 from tests.hostile import (
@@ -310,8 +312,21 @@ def test_a_damaged_log_is_refused_in_one_line(damage, reader, scene):
     log = _case_folder(scene) / "episode_0000000003.mcap"
     shutil.copyfile(scene.fill("{log}", COMMANDS["replay"]), log)
     damage_log(log, *damage)
+    assume(not _same_log(log, Path(scene.fill("{log}", COMMANDS["replay"]))))
     argv = [str(log), "--out", str(scene.root / "out" / "r.mcap")] if reader == "replay" else ["--log", str(log)]
     _run_damaged(COMMANDS[reader], argv, log, scene, f"log:{damage[0]}")
+
+
+def _same_log(damaged: Path, original: Path) -> bool:
+    """Whether dynplan reads the same episode from both files (a flipped byte in an index the reader does not use
+    changes nothing read, so it is no damage to dynplan)."""
+    try:
+        a = read_episode_log(damaged)
+    except LogError:
+        return False
+    b = read_episode_log(original)
+    same = a.metadata == b.metadata and np.array_equal(a.agent_start, b.agent_start)
+    return same and np.array_equal(a.frames, b.frames) and np.array_equal(a.goal, b.goal)
 
 
 def _results_files(scene: Scene) -> list[Path]:

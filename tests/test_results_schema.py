@@ -313,8 +313,8 @@ def test_fewer_episodes_are_a_loss(checkout, capsys):
 
 
 def test_a_manifest_with_string_numbers_is_refused_not_dropped(checkout, capsys):
-    """Playouts written as "100" once made every row of the run stale and its lines vanish from the page (exit 0);
-    now the command refuses, naming the file and line, and writes nothing."""
+    """Playouts written as "100" would make every row of the run stale and its lines vanish from the page: the
+    command refuses, naming the file and line, and writes nothing."""
     run = Run(checkout / "datasets" / "results", "default_epoch7")
     text = run.manifest_path.read_text()
     run.manifest_path.write_text(text.replace('"playouts": 100,', '"playouts": "100",'))

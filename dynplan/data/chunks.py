@@ -19,11 +19,13 @@ import numpy as np
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
+from dynplan.cli import InputError
+
 #: Bytes-to-bytes codecs of every array dynplan writes: compression, then the checksum of what is stored.
 COMPRESSORS = (ZstdCodec(level=3), Crc32cCodec())
 
 
-class ChunkError(ValueError):
+class ChunkError(InputError):
     """A chunk of a store could not be read (checksum mismatch, undecodable or missing); the message names the
     store, the array, the chunk and the episodes it holds."""
 

@@ -78,8 +78,6 @@ def record_episode(out_dir: str | os.PathLike, seed: int, config: RoadConfig | d
 def _is_recording(path: Path, fresh: bytes, world: World, n_frames: int) -> bool:
     """Whether the log at `path` is the recording `fresh` of `world` (`dynplan.logs.recording`). A valid log of
     another world is an error: it is not this run's to replace."""
-    if path.read_bytes() == fresh:
-        return True
     try:
         log = read_episode_log(path)
     except LogError:

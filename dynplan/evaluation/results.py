@@ -19,11 +19,11 @@ import os
 import re
 from pathlib import Path
 
-from dynplan.cli import CommandParser, run_command
+from dynplan.cli import CommandParser, InputError, run_command
 from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs, shown
 from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, table_files
 from dynplan.files import write_bytes_atomic
-from dynplan.paths import PathArgument, PathKind, check_output
+from dynplan.paths import PathArgument, PathKind, check_input, check_output
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python -m dynplan.evaluation.results"
@@ -37,7 +37,7 @@ _GTD_CELL = re.compile(r"(\d+)/(\d+)/(\d+)(?![\d/.])")
 _IMAGE = re.compile(r"!\[[^\]]*\]\(([^)\s]+)\)")
 
 
-class ResultsError(ValueError):
+class ResultsError(InputError):
     """The pages are not written: the store is not there, or they would lose what they show; the message names the
     path and what is wrong."""
 
@@ -323,8 +323,7 @@ def publish(results: Path, docs: Path, readme: Path | None = None, allow_loss: b
     """Write Table 1 (table1.json, table1.md in `results`), `docs`/results.md and `readme`'s Table 1 from the store
     at `results`; return the paths written. A ResultsError, before anything is written, when the store or the
     README is not there, or a page would lose entries (`lost_entries`) and `allow_loss` is not given."""
-    if not results.is_dir():
-        raise ResultsError(f"--results-dir {shown(results)}: no such folder (it is read, never created)")
+    check_input(results, "--results-dir", PathKind.RESULTS_FOLDER)
     if not (results / "runs").is_dir():
         raise ResultsError(f"--results-dir {shown(results)}: not a results store (no runs/ folder in it)")
     check_output(docs, "--docs", "folder", inputs=(results,))
@@ -368,7 +367,7 @@ def main(argv: list[str] | None = None) -> Path:
     try:
         written = publish(Path(args.results_dir), Path(args.docs), Path(args.readme) if args.readme else None,
                           allow_loss=args.allow_loss)  # fmt: skip
-    except ValueError as error:  # StoreError, ResultsError, a table that mixes provenance: all before writing
+    except InputError as error:  # StoreError, ResultsError, a table that mixes provenance: all before writing
         parser.error(str(error))
     print("wrote " + ", ".join(map(shown, written)))
     return written[2]

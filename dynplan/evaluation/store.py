@@ -31,6 +31,7 @@ from contextlib import AbstractContextManager
 from datetime import datetime, timezone
 from pathlib import Path
 
+from dynplan.cli import InputError
 from dynplan.evaluation.store_schema import FORMAT, ROLES, ManifestSchema, RowSchema, first_problem, line_of
 from dynplan.files import exclusive, is_held, write_bytes_atomic
 from dynplan.models.caution import Caution
@@ -48,7 +49,7 @@ _NAMED_KEYS = frozenset((*CASE_KEYS, *RESULT_KEYS, *PROVENANCE_KEYS))
 _RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
 
 
-class StoreError(ValueError):
+class StoreError(InputError):
     """A run's files are unreadable or inconsistent; the message names the file and what is wrong."""
 
 

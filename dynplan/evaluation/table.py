@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from dynplan.evaluation.paper import PAPER_RANDOM_GOALS, PAPER_TABLE1
-from dynplan.evaluation.store import evaluation_rows
+from dynplan.evaluation.store import StoreError, evaluation_rows
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import write_bytes_atomic
 from dynplan.models.caution import Caution
@@ -30,12 +30,12 @@ def _check_provenance(label: str, episodes: list[dict]) -> None:
     for field in SHARED:
         values = {json.dumps(e.get(field)) for e in episodes}
         if len(values) > 1:
-            raise ValueError(f"the results of {label} mix {field} values {sorted(values)}: a row of Table 1 counts "
+            raise StoreError(f"the results of {label} mix {field} values {sorted(values)}: a row of Table 1 counts "
                              f"episodes played the same way only")  # fmt: skip
     seeds = [e.get("seed") for e in episodes]
     twice = sorted({s for s in seeds if s is not None and seeds.count(s) > 1})
     if twice:
-        raise ValueError(f"the results of {label} hold seed(s) {twice} more than once")
+        raise StoreError(f"the results of {label} hold seed(s) {twice} more than once")
 
 
 def _sort_key(row: dict) -> tuple:

@@ -22,6 +22,7 @@ from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 
+from dynplan.cli import InputError
 from dynplan.config import ConfigError
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
@@ -44,7 +45,7 @@ from dynplan.logs.format import (
 )
 
 
-class LogError(ValueError):
+class LogError(InputError):
     """An episode log cannot be used; the message starts with the file's path and says why."""
 
     def __init__(self, path: str | os.PathLike, problem: str):

@@ -13,6 +13,7 @@ from typing import Any
 
 import torch
 
+from dynplan.cli import InputError
 from dynplan.data.store import sha256_file
 from dynplan.files import atomic_path
 
@@ -23,7 +24,7 @@ VQVAE_KIND = "vqvae"
 PIXELCNN_KIND = "pixelcnn"
 
 
-class CheckpointError(ValueError):
+class CheckpointError(InputError):
     """A checkpoint cannot be used here; the message names the file and why."""
 
 

@@ -316,7 +316,8 @@ def load_world_model(path: str | os.PathLike | None = None, model: str = "defaul
     configuration's own caution (its registry entry) except where `caution` (field → value) overrides it. Weights
     are checked, then loaded once per content and shared by every model built on them; `device` is where batched
     generation runs ("cuda" on a GPU). A bad argument is a ValueError naming it."""
-    world_model_spec(model)  # an unknown configuration is named with the registered ones
+    if path is None:
+        world_model_spec(model)  # an unknown configuration is named with the registered ones
     paths = world_model_paths(model) if path is None else (Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt")
     tokenizer, prior = world_model_parts(paths, model)
     return LearnedWorldModel(tokenizer, prior, samples, futures, seed, caution_for(model, caution), device)
