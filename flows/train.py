@@ -150,10 +150,8 @@ def check_init_from(path: str, stage: str, config: dict) -> None:
     """`--init-from`, checked before any flow starts, one line naming it: a readable checkpoint of `stage` whose
     tensors are its recorded configuration's, finite, as its model card says, and able to start a run of `config`
     (`checkpoint.warm_weights`)."""
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"--init-from {path}: no such checkpoint")
     try:
-        state = checkpoint.verify(path, stage)
+        state = checkpoint.verify(path, stage)  # a missing file: "no such checkpoint"
         checkpoint.warm_weights(path, state, stage, checkpoint.module_shapes(stage, config))
     except CheckpointError as error:
         raise CheckpointError(f"--init-from {error}") from None

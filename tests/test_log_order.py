@@ -4,6 +4,7 @@ what its seed records; a store build skips a log out of order, naming it."""
 
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -133,3 +134,28 @@ def test_a_store_build_skips_a_log_out_of_order_naming_it(tmp_path, recorded_log
     report = build_frame_store_from_logs(tmp_path / "frames.zarr", list_logs(logs))
     assert report.episodes == 3 and len(report.added) == 3
     assert report.failed == {str(bad): f"{bad}: /world/frame message 11 has sequence 10 after 11 (frames out of order)"}
+
+
+@pytest.mark.slow
+def test_a_flipped_byte_anywhere_is_refused_or_changes_nothing_read(tmp_path):
+    """Flipping every 41st byte of a recorded log in turn: what replay and play read (`read_recorded_log`) is
+    refused, or is the very episode recorded (the flip fell in an index the reader does not use)."""
+    from dynplan.logs.recording import read_recorded_log
+
+    path = record_episode(tmp_path, 3).path
+    good, original = Path(path).read_bytes(), read_episode_log(path)
+    outcomes = {"refused": 0, "the same episode": 0}
+    for offset in range(0, len(good), 41):
+        damaged = bytearray(good)
+        damaged[offset] ^= 0xFF
+        Path(path).write_bytes(bytes(damaged))
+        try:
+            log = read_recorded_log(path)
+        except LogError:
+            outcomes["refused"] += 1
+            continue
+        assert log.metadata == original.metadata and np.array_equal(log.frames, original.frames), offset
+        assert np.array_equal(log.goal, original.goal) and np.array_equal(log.agent_start, original.agent_start)
+        outcomes["the same episode"] += 1
+    print(outcomes)
+    assert outcomes["refused"] > outcomes["the same episode"]

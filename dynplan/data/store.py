@@ -177,13 +177,6 @@ def committed(group: zarr.Group) -> int:
     return int(group.attrs.get("episodes", 0)) if "log_sha256" in group else 0
 
 
-def committed_rows(store: str | os.PathLike) -> int:
-    """Episodes committed to the store at `store` (0 if there is none yet)."""
-    if not Path(store, "zarr.json").is_file():
-        return 0
-    return committed(zarr.open_group(str(store), mode="r", use_consolidated=False))
-
-
 def episodes_digest(checksums: Sequence[str]) -> str:
     """A key for a prefix of the store's episodes: the digest of their logs' checksums, in order."""
     return hashlib.sha256("".join(checksums).encode()).hexdigest()
