@@ -27,9 +27,9 @@ Count = Annotated[int, Field(ge=0)]
 Positive = Annotated[int, Field(ge=1)]
 Seconds = Annotated[float, Field(ge=0.0)]
 Text = Annotated[str, Field(min_length=1)]
-#: The caution's fields (`dynplan.models.caution.Caution`) with its ranges; null or absent: off.
-Occupancy = Annotated[float, Field(ge=0.0, lt=1.0)] | None
-Margin = Annotated[int, Field(ge=0, le=4)] | None
+#: The caution's fields (`dynplan.models.caution.Caution`) with its ranges; absent: off (a manifest may say null).
+Occupancy = Annotated[float, Field(ge=0.0, lt=1.0)]
+Margin = Annotated[int, Field(ge=0, le=4)]
 
 
 def _setting(value: Any) -> Any:
@@ -76,8 +76,8 @@ class RowSchema(_Schema):
     log_sha256: Text
     # absent where they do not apply; present, never null (a null is a damaged value)
     world_model_sha256: Text = None
-    occupancy: Annotated[float, Field(ge=0.0, lt=1.0)] = None
-    margin: Annotated[int, Field(ge=0, le=4)] = None
+    occupancy: Occupancy = None
+    margin: Margin = None
     decision_ms: Durations
     wall_s: Seconds
     code_version: Text = None
@@ -89,8 +89,8 @@ class RecordedCaution(_Schema):
     model_config = ConfigDict(extra="allow")
     __pydantic_extra__: dict[str, Setting]
 
-    occupancy: Occupancy = None
-    margin: Margin = None
+    occupancy: Occupancy | None = None
+    margin: Margin | None = None
 
 
 class WorldModelEntry(_Schema):
