@@ -14,7 +14,7 @@ LAYERS = {
     "cli": 0, "config": 0, "extras": 0, "files": 0, "paths": 0, "progress": 0, "version": 0,
     "env": 1,
     "logs": 2, "render": 2,
-    "data": 3, "planning": 3,
+    "data": 3, "planning": 3, "view": 3,
     "models": 4,
     "training": 5,
     "evaluation": 6,

@@ -119,15 +119,15 @@ def replay(log: str | os.PathLike, agent: AgentSpec | None = None, agent_speed: 
 
 def search_row(t: int, prediction: Prediction | None, decision: Decision) -> dict:
     """A decision as the log's /planner/search row: the root's visits, Q and prior per action, its value (Q
-    averaged over the visits), the prediction's goal at t + 1 (None where it shows none) and the search's time."""
+    averaged over the visits), the search's time and the prediction's goal at t + 1 (no `goal` where it shows none)."""
     visits = np.asarray(decision.visits, np.float64)
     value = float((visits * decision.q).sum() / visits.sum()) if visits.sum() else 0.0
-    goal = None
+    row = {"t": int(t), "action": int(decision.action), "visits": [int(v) for v in decision.visits],
+           "q": [round(float(q), 6) for q in decision.q], "prior": [round(float(p), 6) for p in decision.prior],
+           "value": round(value, 6), "search_ms": round(float(decision.search_ms), 4)}  # fmt: skip
     if prediction is not None and len(prediction.goal) and not np.isnan(prediction.goal[0, 0]):
-        goal = {"x": float(prediction.goal[0, 1]), "y": float(prediction.goal[0, 0])}
-    return {"t": int(t), "action": int(decision.action), "visits": [int(v) for v in decision.visits],
-            "q": [round(float(q), 6) for q in decision.q], "prior": [round(float(p), 6) for p in decision.prior],
-            "value": round(value, 6), "goal": goal, "search_ms": round(float(decision.search_ms), 4)}  # fmt: skip
+        row["goal"] = {"x": float(prediction.goal[0, 1]), "y": float(prediction.goal[0, 0])}
+    return row
 
 
 def _gif_panel(frames: np.ndarray, t: int, position: np.ndarray, prediction: Prediction | None, k: int) -> np.ndarray:

@@ -11,6 +11,9 @@ Topics (log time = EPOCH + t · FRAME_PERIOD; each message's own timestamp is eq
 | /agent/view    | foxglove.RawImage   | step    | (optional) the world frame with the agent drawn (value 200) |
 | /planner/imagined | foxglove.RawImage | decision| (optional) the k predicted frames t+1 … t+k, side by side   |
 | /planner/search | JSON (jsonschema) | decision | (optional) the root: visits, Q, prior per action; value; goal |
+
+Every JSON schema is one that Foxglove's schema parser takes: one type per field, objects with their properties
+(a field that may be missing is left out of `required`, never typed as a union with null).
 | /world/annotations | foxglove.ImageAnnotations | step | (optional) agent, true and predicted goal, action |
 
 The metadata record `dynplan` holds the format and version, the world config (JSON), seed, height, width,
@@ -76,10 +79,15 @@ SEARCH_JSON_SCHEMA = {
         "q": {"type": "array", "items": {"type": "number"}, "description": "root mean value per action"},
         "prior": {"type": "array", "items": {"type": "number"}, "description": "root prior per action"},
         "value": {"type": "number", "description": "the root's value: Q averaged over the visits"},
-        "goal": {"type": ["object", "null"], "description": "predicted goal centre at t + 1 (x = col, y = row)"},
+        "goal": {
+            "type": "object",
+            "properties": {"x": {"type": "number"}, "y": {"type": "number"}},
+            "required": ["x", "y"],
+            "description": "predicted goal centre at t + 1 (x = col, y = row); absent where the prediction shows none",
+        },
         "search_ms": {"type": "number", "description": "the search's milliseconds (the prediction's not counted)"},
     },
-    "required": ["t", "action", "visits", "q", "prior", "value", "goal", "search_ms"],
+    "required": ["t", "action", "visits", "q", "prior", "value", "search_ms"],
 }
 
 
@@ -133,8 +141,12 @@ class AgentTrack:
 
 
 #: The Foxglove layout shipped for replay logs: the world frame with its annotations, the imagined frames, the
-#: agent's view, the search's statistics and the agent's path (open it in Foxglove: Layouts → Import).
+#: agent's view, the search's statistics and the agent's path (open it in Foxglove: Layouts → Import). Its image
+#: panels are the `Image` panel of the current Foxglove app and of Lichtblick.
 REPLAY_LAYOUT = Path(__file__).parent / "layouts" / "replay.json"
+#: The same layout for the open-source Foxglove Studio 1.48 that `flows.view` serves, whose image panel is
+#: `ImageViewPanel` (its `Image` panel is an experimental one that draws nothing without a setting).
+STUDIO_LAYOUT = Path(__file__).parent / "layouts" / "replay-studio-1.48.json"
 
 
 def layout_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> set[str]:
@@ -144,6 +156,7 @@ def layout_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> set[str]:
     for config in configs:
         image = config.get("imageMode", {})
         topics |= {image["imageTopic"], *image.get("annotations", {})} if "imageTopic" in image else set()
+        topics |= {config["cameraTopic"], *config.get("enabledMarkerTopics", [])} if "cameraTopic" in config else set()
         paths = [p["value"] for p in config.get("paths", [])] + ([config["topicPath"]] if "topicPath" in config else [])
         topics |= {path.split(".")[0] for path in paths}
     return topics

@@ -1,0 +1,108 @@
+"""`python -m flows.view LOG.mcap`: see an episode or replay log in Foxglove Studio, offline, with dynplan's layout.
+
+Serves the open-source Foxglove Studio 1.48 (fetched once from the npm registry into a cache folder, checked against
+its pinned digests), the layout `dynplan/logs/layouts/replay-studio-1.48.json` and the log on 127.0.0.1, prints the
+URL to open, and serves until interrupted. With --screenshot it instead opens the view in headless Chromium, waits
+until the app has listed the log's topics and drawn its panels, writes the picture and says what the app showed.
+
+    python -m flows.view replay.mcap                      # then open the printed URL
+    python -m flows.view replay.mcap --screenshot shot.png --at 3
+    python -m flows.view --install                        # fetch the app now (37 MB, once)
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from dynplan.cli import Bounded, CommandParser, InputError, run_command
+from dynplan.logs.format import FRAME_PERIOD_NS, STUDIO_LAYOUT
+from dynplan.logs.reader import read_episode_log
+from dynplan.paths import PathArgument, PathKind
+from dynplan.view.app import default_cache, install
+from dynplan.view.browser import find_chromium
+from dynplan.view.capture import CaptureSettings, ViewReport, capture, view_query
+from dynplan.view.server import ViewServer, routes
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = CommandParser(prog="python -m flows.view", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("log", nargs="?", type=PathArgument(PathKind.LOG), help="an episode or replay log (.mcap)")
+    parser.add_argument("--port", type=Bounded(int, 0, 65535), default=0,
+                        help="the port to serve on at 127.0.0.1 (default 0: a free one)")  # fmt: skip
+    parser.add_argument("--screenshot", type=PathArgument(PathKind.OUTPUT_FILE),
+                        help="write a picture (.png) of the view from headless Chromium, not serve")  # fmt: skip
+    parser.add_argument("--at", type=Bounded(float, 0.0, 86400.0),
+                        help="seconds of log time to show (default: the start); within the log's duration")  # fmt: skip
+    parser.add_argument("--timeout", type=Bounded(float, 1.0, 3600.0), default=60.0,
+                        help="seconds the screenshot waits for the app to draw (default 60)")  # fmt: skip
+    parser.add_argument("--install", action="store_true",
+                        help="fetch the app into the cache (done on first use anyway); alone, only that")  # fmt: skip
+    parser.add_argument("--cache", type=PathArgument(PathKind.OUTPUT_FOLDER),
+                        help=f"the app's cache (default $DYNPLAN_VIEWER_CACHE or {default_cache()})")  # fmt: skip
+    parser.add_argument("--debug", action="store_true", help="print the whole traceback of an unexpected error")
+    return parser
+
+
+def _check(args: argparse.Namespace) -> None:
+    """Refuse what the parser cannot see: no log, a screenshot that is not a .png, a time past the log's end, and a
+    log that is not dynplan's or is damaged (the reader names what is wrong)."""
+    if args.log is None:
+        if args.install:
+            return
+        raise InputError("LOG: missing; give an episode or replay log (.mcap), or --install alone")
+    if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
+        raise InputError(f"--screenshot {args.screenshot}: must end in .png")
+    if args.screenshot is None and args.at is not None:
+        raise InputError("--at: only with --screenshot (in the app, drag the timeline)")
+    log = read_episode_log(args.log)
+    duration = (log.n_frames - 1) * FRAME_PERIOD_NS / 1e9
+    if args.at is not None and args.at > duration:
+        raise InputError(f"--at={args.at:g} is past the log's end; valid range [0, {duration:g}] seconds")
+
+
+def serve(log: Path, app: Path, port: int) -> None:
+    """Serve the view of `log` until interrupted."""
+    table, (log_url,) = routes(app, STUDIO_LAYOUT, [log])
+    with ViewServer(table, port) as server:
+        print(f"Foxglove Studio with {log.name}: {server.origin}{view_query(server.origin, log_url)}")
+        print("serving on 127.0.0.1 only; Ctrl-C stops")
+        try:
+            while True:
+                time.sleep(3600)
+        except KeyboardInterrupt:
+            print("stopped")
+
+
+def report_lines(report: ViewReport, out: Path) -> list[str]:
+    """What the command prints after a screenshot: the picture, the summary, and anything the app complained of."""
+    lines = [f"wrote {out}: {report.summary()}"]
+    lines += [f"problem: {p}" for p in report.problems]
+    lines += [f"panel {p.id} shows nothing" for p in report.panels if not p.drawn]
+    lines += [f"request off 127.0.0.1: {u}" for u in report.outside_requests]
+    if not report.complete:
+        lines.append("the app had not drawn every image panel within --timeout; the picture shows it so")
+    return lines
+
+
+def main(argv: list[str] | None = None) -> ViewReport | Path | None:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    _check(args)
+    chromium = find_chromium() if args.screenshot else None  # before the download: fail fast
+    app = install(Path(args.cache) if args.cache else default_cache())
+    if args.log is None:
+        return app
+    if args.screenshot is None:
+        serve(Path(args.log), app, args.port)
+        return None
+    settings = CaptureSettings(at_s=args.at, timeout_s=args.timeout)
+    report = capture(app, STUDIO_LAYOUT, Path(args.log), Path(args.screenshot), chromium, settings)
+    print("\n".join(report_lines(report, Path(args.screenshot))))
+    return report
+
+
+if __name__ == "__main__":
+    run_command(main, "python -m flows.view")
