@@ -17,9 +17,9 @@ import time
 from pathlib import Path
 
 from dynplan.cli import Bounded, CommandParser, InputError, run_command
-from dynplan.logs.format import FRAME_PERIOD_NS, STUDIO_LAYOUT
+from dynplan.logs.format import FRAME_PERIOD_NS, STUDIO_LAYOUT, panel_topics
 from dynplan.logs.reader import read_episode_log
-from dynplan.paths import PathArgument, PathKind
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.view.app import default_cache, install
 from dynplan.view.browser import find_chromium
 from dynplan.view.capture import CaptureSettings, ViewReport, capture, view_query
@@ -53,10 +53,14 @@ def _check(args: argparse.Namespace) -> None:
         if args.install:
             return
         raise InputError("LOG: missing; give an episode or replay log (.mcap), or --install alone")
-    if args.screenshot is not None and Path(args.screenshot).suffix.lower() != ".png":
-        raise InputError(f"--screenshot {args.screenshot}: must end in .png")
+    if args.screenshot is not None:
+        if Path(args.screenshot).suffix.lower() != ".png":
+            raise InputError(f"--screenshot {args.screenshot}: must end in .png")
+        check_output(args.screenshot, "--screenshot", "file", inputs=(args.log,))
     if args.screenshot is None and args.at is not None:
         raise InputError("--at: only with --screenshot (in the app, drag the timeline)")
+    if args.cache is not None:
+        check_output(args.cache, "--cache", "folder", inputs=(args.log,))
     log = read_episode_log(args.log)
     duration = (log.n_frames - 1) * FRAME_PERIOD_NS / 1e9
     if args.at is not None and args.at > duration:
@@ -80,7 +84,10 @@ def report_lines(report: ViewReport, out: Path) -> list[str]:
     """What the command prints after a screenshot: the picture, the summary, and anything the app complained of."""
     lines = [f"wrote {out}: {report.summary()}"]
     lines += [f"problem: {p}" for p in report.problems]
-    lines += [f"panel {p.id} shows nothing" for p in report.panels if not p.drawn]
+    reads = panel_topics(STUDIO_LAYOUT)
+    for panel in (p for p in report.panels if not p.drawn):
+        missing = sorted(reads.get(panel.id, set()) - set(report.topics))
+        lines.append(f"panel {panel.id} shows nothing" + (f": the log has no {', '.join(missing)}" if missing else ""))
     lines += [f"request off 127.0.0.1: {u}" for u in report.outside_requests]
     if not report.complete:
         lines.append("the app had not drawn every image panel within --timeout; the picture shows it so")

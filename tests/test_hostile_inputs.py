@@ -41,6 +41,7 @@ import flows.play
 import flows.replay
 import flows.serve
 import flows.train
+import flows.view
 from dynplan.cli import CommandParser, run_command
 from dynplan.data.build import build_frame_store
 from dynplan.data.collect import record_episode
@@ -106,6 +107,7 @@ COMMANDS = {
                                   ("--out", "{out}/cte"), None, {"--dask-address": _DASK}),
     "serve": Command(flows.serve.main, "python -m flows.serve", ("--out", "{out}/srv"), None,
                      {"--dask-address": _DASK}),
+    "view": Command(flows.view.main, "python -m flows.view", ("{log}",), "{log}"),
     "bench_pipeline": Command(flows.bench_pipeline.main, "python -m flows.bench_pipeline", ("--out", "{out}/b.json")),
     "results": Command(dynplan.evaluation.results.main, "python -m dynplan.evaluation.results",
                        ("--results-dir", "{results}", "--readme", "{readme}", "--docs", "{docs}"), "{results}",
@@ -182,7 +184,12 @@ def invoke(command: Command, argv: list[str]) -> tuple[int | str, str]:
         stack.enter_context(redirect_stderr(err))
         stack.enter_context(redirect_stdout(io.StringIO()))
         stack.enter_context(mock.patch.object(Flow, "__call__", _accepted))
-        for target in ("flows.play.play", "flows.serve.serve", "flows.bench_pipeline.bench_pipeline"):
+        for target in (
+            "flows.play.play",
+            "flows.serve.serve",
+            "flows.bench_pipeline.bench_pipeline",
+            "flows.view.install",
+        ):
             stack.enter_context(mock.patch(target, _accepted))
         try:
             run_command(command.main, command.prog, argv)

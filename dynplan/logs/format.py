@@ -149,14 +149,19 @@ REPLAY_LAYOUT = Path(__file__).parent / "layouts" / "replay.json"
 STUDIO_LAYOUT = Path(__file__).parent / "layouts" / "replay-studio-1.48.json"
 
 
-def layout_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> set[str]:
-    """The topics a Foxglove layout's panels read: image and annotation topics, plots' and raw messages' paths."""
-    configs = json.loads(Path(layout).read_text())["configById"].values()
-    topics: set[str] = set()
-    for config in configs:
+def panel_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> dict[str, set[str]]:
+    """The topics each panel of a Foxglove layout reads (by panel id): image and annotation topics of image panels
+    (either dialect), the topics of plots' and raw messages' paths."""
+    panels = {}
+    for key, config in json.loads(Path(layout).read_text())["configById"].items():
         image = config.get("imageMode", {})
-        topics |= {image["imageTopic"], *image.get("annotations", {})} if "imageTopic" in image else set()
+        topics = {image["imageTopic"], *image.get("annotations", {})} if "imageTopic" in image else set()
         topics |= {config["cameraTopic"], *config.get("enabledMarkerTopics", [])} if "cameraTopic" in config else set()
         paths = [p["value"] for p in config.get("paths", [])] + ([config["topicPath"]] if "topicPath" in config else [])
-        topics |= {path.split(".")[0] for path in paths}
-    return topics
+        panels[key] = topics | {path.split(".")[0] for path in paths}
+    return panels
+
+
+def layout_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> set[str]:
+    """The topics a Foxglove layout's panels read."""
+    return set().union(*panel_topics(layout).values())

@@ -8,9 +8,11 @@ nothing but 127.0.0.1, so a page it shows cannot reach another machine; every re
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
 import time
@@ -49,12 +51,17 @@ class Browser:
         self._next_id = 0
 
     def __enter__(self) -> Browser:
-        self._profile = tempfile.TemporaryDirectory(prefix="dynplan-chromium-")
+        self._profile = tempfile.TemporaryDirectory(prefix="dynplan-chromium-", ignore_cleanup_errors=True)
         flags = [*FLAGS, f"--user-data-dir={self._profile.name}", f"--window-size={self.size[0]},{self.size[1]}"]
         if hasattr(os, "geteuid") and os.geteuid() == 0:
             flags.append("--no-sandbox")  # Chromium refuses to start its sandbox as root
-        self._process = subprocess.Popen([self.executable, *flags, "about:blank"], stdin=subprocess.DEVNULL,
-                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+        self._process = subprocess.Popen(
+            [self.executable, *flags, "about:blank"],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )  # fmt: skip  (its helpers end with it, below)
         try:
             self._socket = connect(self._page_socket(), max_size=None, open_timeout=START_TIMEOUT_S)
             self.call("Emulation.setDeviceMetricsOverride", width=self.size[0], height=self.size[1],
@@ -69,13 +76,17 @@ class Browser:
     def __exit__(self, *exc) -> None:
         if getattr(self, "_socket", None) is not None:
             self._socket.close()
-        self._process.terminate()
-        try:
+        self._signal_all(signal.SIGTERM)
+        with contextlib.suppress(subprocess.TimeoutExpired):
             self._process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self._process.kill()
-            self._process.wait()
+        self._signal_all(signal.SIGKILL)  # the helpers (renderers, crash handler) that outlived the browser
+        self._process.wait()
         self._profile.cleanup()
+
+    def _signal_all(self, signum: int) -> None:
+        """Signal the browser and every process it started (its own process group)."""
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self._process.pid, signum)
 
     def _page_socket(self) -> str:
         """The DevTools WebSocket of the browser's first page, once the browser has written its port."""

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import json
 import time
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -17,10 +18,11 @@ from pathlib import Path
 from urllib.parse import urlencode
 
 import numpy as np
+from mcap.reader import make_reader
 from PIL import Image
 
 from dynplan.files import atomic_path
-from dynplan.logs.format import EPOCH_NS
+from dynplan.logs.format import EPOCH_NS, layout_topics
 from dynplan.view.browser import Browser
 from dynplan.view.server import ViewServer, routes
 
@@ -84,8 +86,8 @@ class ViewReport:
 
 @dataclass(frozen=True)
 class CaptureSettings:
-    """How to take the picture: at `at_s` seconds of log time (None: the app's start), `size` CSS pixels, giving
-    up waiting for the panels after `timeout_s`."""
+    """How to take the picture: at `at_s` seconds of log time (None: once every panel has something), `size` CSS
+    pixels, giving up waiting for the panels after `timeout_s`."""
 
     at_s: float | None = None
     size: tuple[int, int] = (1600, 1000)
@@ -102,12 +104,16 @@ def view_query(origin: str, log_url: str, at_s: float | None = None) -> str:
 
 
 def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settings: CaptureSettings) -> ViewReport:
-    """Show `log` in the app at `app` with `layout`, write the screenshot to `out` (atomically) and report."""
+    """Show `log` in the app at `app` with `layout`, write the screenshot to `out` (atomically) and report. The
+    time shown is `settings.at_s`, or else the first at which every topic the layout reads has had a message."""
     table, (log_url,) = routes(app, layout, [log])
     with ViewServer(table) as server, Browser(chromium, *settings.size) as browser:
         start = time.monotonic()
-        browser.open(server.origin + view_query(server.origin, log_url, settings.at_s))
-        state, complete = _wait(browser, settings.timeout_s)
+        firsts = first_times(log)
+        at_s = settings.at_s if settings.at_s is not None else max(firsts.get(t, 0.0) for t in layout_topics(layout))
+        browser.open(server.origin + view_query(server.origin, log_url, at_s))
+        due = {key for key, topic in _image_topics(layout).items() if firsts.get(topic, np.inf) <= at_s}
+        state, complete = _wait(browser, due, settings.timeout_s)
         if state["problem_count"]:
             browser.evaluate(SHOW_PROBLEMS_JS)
             time.sleep(0.3)
@@ -127,14 +133,34 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
     return ViewReport(_topics(state["lines"]), problems, panels, outside, errors, seconds, complete)
 
 
-def _wait(browser: Browser, timeout_s: float) -> tuple[dict, bool]:
-    """Poll the page until it lists topics and no panel waits for images; the last state and whether it got there."""
+def _image_topics(layout: Path) -> dict[str, str]:
+    """Each image panel of a layout (either dialect) and the topic it draws."""
+    configs = json.loads(Path(layout).read_text())["configById"]
+    topics = {key: config.get("cameraTopic") or config.get("imageMode", {}).get("imageTopic")
+              for key, config in configs.items()}  # fmt: skip
+    return {key: topic for key, topic in topics.items() if topic}
+
+
+def first_times(log: Path) -> dict[str, float]:
+    """Each topic's first message, in seconds of log time (from the log's start, EPOCH)."""
+    firsts: dict[str, float] = {}
+    with open(log, "rb") as f:
+        for _schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            seconds = (message.log_time - EPOCH_NS) / 1e9
+            firsts[channel.topic] = min(firsts.get(channel.topic, seconds), seconds)
+    return firsts
+
+
+def _wait(browser: Browser, due: set[str], timeout_s: float) -> tuple[dict, bool]:
+    """Poll the page until it lists topics and none of the image panels `due` (those whose topic has a message by
+    the time shown) waits for its image; the last state and whether it got there."""
     deadline = time.monotonic() + timeout_s
     while True:
         state = browser.evaluate(STATE_JS)
         if state["error"]:
             raise RuntimeError(state["error"])
-        ready = state["tab"] == "Topics" and _topics(state["lines"]) and not any(p["waiting"] for p in state["panels"])
+        waiting = [p for p in state["panels"] if p["waiting"] and p["id"] in due]
+        ready = state["tab"] == "Topics" and bool(_topics(state["lines"])) and not waiting
         if ready or time.monotonic() > deadline:
             time.sleep(SETTLE_S)  # let the plots and images finish their frame
             return browser.evaluate(STATE_JS), bool(ready)
@@ -147,7 +173,7 @@ def _topics(lines: list[str]) -> dict[str, str]:
 
 
 def _drawn(panel: dict, pixels: np.ndarray) -> bool:
-    """Whether a panel's pixels show content: an image panel the world (≥ 10 % black road and some grey
+    """Whether a panel's pixels show content: an image panel (either dialect) the world (≥ 10 % black road and some grey
     obstacles), a plot lines (≥ 0.2 % of its canvas in saturated colour); other panels count as drawn."""
     kind = panel["id"].split("!")[0]
     box = panel["canvas"] or panel["box"]
@@ -156,7 +182,7 @@ def _drawn(panel: dict, pixels: np.ndarray) -> bool:
     if crop.size == 0:
         return False
     spread = crop.max(axis=2) - crop.min(axis=2)
-    if kind == "ImageViewPanel":
+    if kind in ("ImageViewPanel", "Image"):
         black = (crop.max(axis=2) < 24).mean()
         grey = ((spread < 8) & (crop.min(axis=2) >= 24) & (crop.max(axis=2) <= 250)).mean()
         return bool(black >= 0.10 and grey >= 0.002)
