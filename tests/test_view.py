@@ -32,6 +32,7 @@ from dynplan.logs import writer
 from dynplan.logs.format import REPLAY_LAYOUT, SEARCH_JSON_SCHEMA, STEP_JSON_SCHEMA, STUDIO_LAYOUT, layout_topics
 from dynplan.logs.reader import inspect_log
 from dynplan.view import app as viewer_app
+from dynplan.view.browser import find_chromium
 from dynplan.view.capture import CaptureSettings, capture
 from dynplan.view.server import ViewServer, routes
 
@@ -239,11 +240,12 @@ def test_bad_inputs_are_one_line_and_exit_2(tmp_path, episode_log):
 @pytest.fixture(scope="module")
 def studio():
     """The installed app (the viewer's own install step fetches it on first use) and the Chromium to show it."""
-    chromium = shutil.which(os.environ.get("DYNPLAN_CHROMIUM") or "chromium")
-    if chromium is None:
+    try:
+        chromium = find_chromium()
+    except InputError as missing:
         if os.environ.get("DYNPLAN_REQUIRE_BROWSER"):
-            pytest.fail("DYNPLAN_REQUIRE_BROWSER is set but there is no Chromium (apt-get install chromium)")
-        pytest.skip("no Chromium on PATH (.ci/run installs it: apt-get install chromium)")
+            pytest.fail(f"DYNPLAN_REQUIRE_BROWSER is set: {missing}")
+        pytest.skip(f"{missing} (.ci/run installs it)")
     return viewer_app.install(viewer_app.default_cache()), chromium
 
 
