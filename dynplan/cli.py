@@ -8,6 +8,7 @@ so a bad value is refused while parsing, before any work, and a test can draw ba
 from __future__ import annotations
 
 import argparse
+import ctypes
 import math
 import os
 import re
@@ -19,6 +20,9 @@ from typing import TYPE_CHECKING, Any, NoReturn, get_args
 
 if TYPE_CHECKING:
     from pydantic import BaseModel
+
+
+_PR_SET_PDEATHSIG = 1  # prctl(2)
 
 
 class InputError(ValueError):
@@ -125,6 +129,13 @@ def interrupt_while_loading() -> None:
     ours = target.split(".")[0] in ("dynplan", "flows")
     if sys.argv[:1] == ["-m"] and ours and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
         signal.signal(signal.SIGINT, _interrupted_while_loading)
+
+
+def die_with_parent() -> None:
+    """In a child between fork and exec (`subprocess.Popen(preexec_fn=...)`): have the kernel end it with SIGTERM
+    when the process that started it dies, however it dies (Linux; elsewhere nothing)."""
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[str] | None = None) -> Any:

@@ -10,10 +10,8 @@ parent-death signal), points Prefect at it, drains Prefect's workers and only th
 from __future__ import annotations
 
 import argparse
-import ctypes
 import logging
 import os
-import signal
 import socket
 import subprocess
 import sys
@@ -28,21 +26,15 @@ import httpx
 import prefect
 from prefect.settings import PREFECT_API_URL, PREFECT_UI_URL, get_current_settings, temporary_settings
 
-from dynplan.cli import run_command
+from dynplan.cli import die_with_parent, run_command
 
 #: Seconds to wait for the temporary server's health check.
 STARTUP_TIMEOUT_S = 120.0
-_PR_SET_PDEATHSIG = 1
 
 
 def add_debug_option(parser: argparse.ArgumentParser) -> None:
     """The `--debug` option (read by `run`): print the traceback of an unexpected error."""
     parser.add_argument("--debug", action="store_true", help="print the whole traceback of an unexpected error")
-
-
-def _die_with_parent() -> None:  # runs in the child between fork and exec
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _free_port() -> int:
@@ -103,7 +95,7 @@ def temporary_api() -> Iterator[str | None]:
                "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(port),
                "--log-level", "error", "--lifespan", "on"]  # fmt: skip
     with tempfile.TemporaryFile() as log:
-        server = subprocess.Popen(command, env=env, preexec_fn=_die_with_parent, stdin=subprocess.DEVNULL,
+        server = subprocess.Popen(command, env=env, preexec_fn=die_with_parent, stdin=subprocess.DEVNULL,
                                   stdout=log, stderr=log)  # fmt: skip
         try:
             _wait_until_healthy(server, url, log)

@@ -23,7 +23,7 @@ from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.view.app import default_cache, install
 from dynplan.view.browser import find_chromium
 from dynplan.view.capture import CaptureSettings, ViewReport, capture, view_query
-from dynplan.view.server import ViewServer, routes
+from dynplan.view.server import ViewServer, check_port, routes
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -36,7 +36,7 @@ def _parser() -> argparse.ArgumentParser:
                         help="write a picture (.png) of the view from headless Chromium, not serve")  # fmt: skip
     parser.add_argument("--at", type=Bounded(float, 0.0, 86400.0),
                         help="seconds of log time to show (default: the start); within the log's duration")  # fmt: skip
-    parser.add_argument("--timeout", type=Bounded(float, 1.0, 3600.0), default=60.0,
+    parser.add_argument("--timeout", type=Bounded(float, 1.0, 3600.0),
                         help="seconds the screenshot waits for the app to draw (default 60)")  # fmt: skip
     parser.add_argument("--install", action="store_true",
                         help="fetch the app into the cache (done on first use anyway); alone, only that")  # fmt: skip
@@ -57,8 +57,9 @@ def _check(args: argparse.Namespace) -> None:
         if Path(args.screenshot).suffix.lower() != ".png":
             raise InputError(f"--screenshot {args.screenshot}: must end in .png")
         check_output(args.screenshot, "--screenshot", "file", inputs=(args.log,))
-    if args.screenshot is None and args.at is not None:
-        raise InputError("--at: only with --screenshot (in the app, drag the timeline)")
+    if args.screenshot is None and (args.at is not None or args.timeout is not None):
+        option = "--at" if args.at is not None else "--timeout"
+        raise InputError(f"{option}: only with --screenshot (in the app, drag the timeline)")
     if args.cache is not None:
         check_output(args.cache, "--cache", "folder", inputs=(args.log,))
     log = read_episode_log(args.log)
@@ -71,8 +72,8 @@ def serve(log: Path, app: Path, port: int) -> None:
     """Serve the view of `log` until interrupted."""
     table, (log_url,) = routes(app, STUDIO_LAYOUT, [log])
     with ViewServer(table, port) as server:
-        print(f"Foxglove Studio with {log.name}: {server.origin}{view_query(server.origin, log_url)}")
-        print("serving on 127.0.0.1 only; Ctrl-C stops")
+        print(f"Foxglove Studio with {log.name}: {server.origin}{view_query(server.origin, log_url)}", flush=True)
+        print("serving on 127.0.0.1 only; Ctrl-C stops", flush=True)
         try:
             while True:
                 time.sleep(3600)
@@ -99,13 +100,14 @@ def main(argv: list[str] | None = None) -> ViewReport | Path | None:
     args = parser.parse_args(argv)
     _check(args)
     chromium = find_chromium() if args.screenshot else None  # before the download: fail fast
+    check_port(args.port)
     app = install(Path(args.cache) if args.cache else default_cache())
     if args.log is None:
         return app
     if args.screenshot is None:
         serve(Path(args.log), app, args.port)
         return None
-    settings = CaptureSettings(at_s=args.at, timeout_s=args.timeout)
+    settings = CaptureSettings(at_s=args.at, timeout_s=args.timeout or CaptureSettings().timeout_s, port=args.port)
     report = capture(app, STUDIO_LAYOUT, Path(args.log), Path(args.screenshot), chromium, settings)
     print("\n".join(report_lines(report, Path(args.screenshot))))
     return report

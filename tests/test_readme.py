@@ -1,5 +1,6 @@
 """Every snippet of README.md runs as written: its Python blocks, and its shell blocks other than set-up and servers
-(which CI and the deployment test run), in a temporary folder so the checkout stays clean."""
+(which CI, the deployment test and the viewer's browser test run), in a temporary folder so the checkout stays
+clean."""
 
 import re
 import subprocess
@@ -11,8 +12,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
 BLOCKS = re.findall(r"```(\w+)\n(.*?)```", README, flags=re.S)
-#: Shell blocks these tests leave to others: set-up (CI runs it) and long-running servers (the deployment test).
-NOT_HERE = ("pip install", "prefect server", "flows.serve")
+#: Shell blocks these tests leave to others: set-up (CI runs it) and long-running servers (the deployment test, the
+#: viewer's browser test in tests/test_view.py).
+NOT_HERE = ("pip install", "prefect server", "flows.serve", "flows.view")
 
 
 def test_the_readme_is_small_and_has_its_snippets():

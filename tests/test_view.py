@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import signal
 import socket
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import httpx
@@ -31,7 +33,7 @@ from dynplan.logs import writer
 from dynplan.logs.format import REPLAY_LAYOUT, SEARCH_JSON_SCHEMA, STEP_JSON_SCHEMA, STUDIO_LAYOUT, layout_topics
 from dynplan.logs.reader import inspect_log
 from dynplan.view import app as viewer_app
-from dynplan.view.browser import find_chromium
+from dynplan.view.browser import Browser, find_chromium
 from dynplan.view.capture import CaptureSettings, capture
 from dynplan.view.server import ViewServer, routes
 
@@ -70,11 +72,7 @@ def foxglove_fields(schema: dict, path: str = "") -> list[str]:
 def test_every_json_schema_we_write_is_one_foxglove_parses():
     assert foxglove_fields(STEP_JSON_SCHEMA) == []
     assert foxglove_fields(SEARCH_JSON_SCHEMA) == []
-    refused = {
-        **SEARCH_JSON_SCHEMA,
-        "properties": {**SEARCH_JSON_SCHEMA["properties"], "goal": {"type": ["object", "null"]}},
-    }
-    assert foxglove_fields(refused) == ["goal: type ['object', 'null']"]  # the rules see the union Foxglove refused
+    assert foxglove_fields(REFUSED_SEARCH_SCHEMA) == ["goal: type ['object', 'null']"]  # as Foxglove refused it
 
 
 @pytest.fixture(scope="module")
@@ -144,6 +142,10 @@ def test_the_server_answers_only_what_it_serves(served):
                  "/logs/1/a%20log.mcap", "/etc/passwd", "//etc/passwd", "/app/assets/"):  # fmt: skip
         assert httpx.get(origin + path).status_code == 404, path
     assert httpx.post(origin + "/").status_code == 501
+    for header in ("bytes=5-3", "bytes=" + "9" * 5000 + "-", "bytes=0-1,4-5", "items=0-1"):  # not one byte range
+        whole = httpx.get(origin + log_url, headers={"Range": header})
+        assert whole.status_code == 200 and whole.content == data, header  # ignored: the whole file
+    assert httpx.get(origin + "/", headers={"Host": "rebound.example"}).status_code == 403
     head = httpx.head(origin + log_url)
     assert head.headers["content-length"] == str(len(data)) and head.headers["accept-ranges"] == "bytes"
 
@@ -263,7 +265,7 @@ def test_a_replay_log_opens_in_foxglove_with_every_topic_and_no_problem(studio, 
     log_topics = {name: schema for name, (schema, _count) in inspect_log(replay_log).topics.items()}
     assert report.topics == log_topics  # every topic listed, with its schema: none refused
     assert report.problems == ()
-    assert report.outside_requests == ()
+    assert report.outside_requests == () and report.log_requests > 0  # the recorder sees the app's reads
     assert report.complete and report.page_errors == ()
     kinds = {panel.id: panel for panel in report.panels}
     assert set(kinds) == set(json.loads(STUDIO_LAYOUT.read_text())["configById"])
@@ -281,11 +283,7 @@ def test_a_refused_schema_and_a_blank_panel_are_seen(studio, tmp_path, monkeypat
     from dynplan.evaluation.agent import AgentSpec
     from dynplan.evaluation.replay import replay
 
-    refused = {
-        **SEARCH_JSON_SCHEMA,
-        "properties": {**SEARCH_JSON_SCHEMA["properties"], "goal": {"type": ["object", "null"]}},
-    }
-    monkeypatch.setattr(writer, "SEARCH_JSON_SCHEMA", refused)
+    monkeypatch.setattr(writer, "SEARCH_JSON_SCHEMA", REFUSED_SEARCH_SCHEMA)
     log = tmp_path / "refused.mcap"
     replay(episode_log, AgentSpec(technique="oracle", rollout_steps=3, playouts=20), out=log)
     app, chromium = studio
@@ -300,12 +298,36 @@ def test_a_refused_schema_and_a_blank_panel_are_seen(studio, tmp_path, monkeypat
 
 
 @pytest.mark.slow
+def test_the_browser_records_requests_of_the_page_and_its_workers(studio, tmp_path):
+    """What `outside_requests` is made of sees a page's and a worker's requests elsewhere (none of which is sent)."""
+    (tmp_path / "index.html").write_text("<script>fetch('http://192.0.2.1/from-page'); new Worker('w.js');</script>")
+    (tmp_path / "w.js").write_text("fetch('http://outside.example/from-worker');")
+    outside = {"http://192.0.2.1/from-page", "http://outside.example/from-worker"}
+    table = {"/": tmp_path / "index.html", "/w.js": tmp_path / "w.js"}
+    with ViewServer(table) as server, Browser(studio[1]) as browser:
+        browser.open(server.origin + "/")
+        deadline = time.monotonic() + 10
+        while not outside <= set(browser.requests) and time.monotonic() < deadline:
+            browser.evaluate("1")  # reads the events that arrived
+            time.sleep(0.1)
+    assert outside <= set(browser.requests), browser.requests
+    assert len(browser.errors) == 2  # each fetch failed: the page reached nothing elsewhere
+
+
+def _interruptible() -> None:
+    """Let the child take SIGINT even where this suite runs in the background (which ignores it)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.mark.slow
 def test_the_viewer_serves_until_interrupted(studio, replay_log):
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # the URL must come through a pipe
     process = subprocess.Popen([PYTHON, "-m", "flows.view", str(replay_log)], cwd=ROOT, stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, text=True)  # fmt: skip
+                               stderr=subprocess.PIPE, text=True, env=env, preexec_fn=_interruptible)  # fmt: skip
     try:
-        line = process.stdout.readline()
-        url = line.split(": ", 1)[1].strip()
+        ready, _, _ = select.select([process.stdout], [], [], 60)
+        assert ready, "no URL within 60 s"
+        url = process.stdout.readline().split(": ", 1)[1].strip()
         origin = url.split("/?")[0]
         assert origin.startswith("http://127.0.0.1:") and "layoutId=dynplan" in url
         assert httpx.get(url).text.startswith("<!doctype html>")
@@ -313,6 +335,8 @@ def test_the_viewer_serves_until_interrupted(studio, replay_log):
         piece = httpx.get(f"{origin}/logs/0/replay.mcap", headers={"Range": "bytes=0-7"})
         assert piece.content == replay_log.read_bytes()[:8] and piece.headers["content-range"] == f"bytes 0-7/{size}"
         assert httpx.get(origin + "/pyproject.toml").status_code == 404
+        port = origin.rsplit(":", 1)[1]
+        assert httpx.get(url, headers={"Host": f"rebound.example:{port}"}).status_code == 403  # DNS rebinding
     finally:
         process.send_signal(signal.SIGINT)
         out, err = process.communicate(timeout=30)

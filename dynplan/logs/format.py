@@ -11,10 +11,10 @@ Topics (log time = EPOCH + t · FRAME_PERIOD; each message's own timestamp is eq
 | /agent/view    | foxglove.RawImage   | step    | (optional) the world frame with the agent drawn (value 200) |
 | /planner/imagined | foxglove.RawImage | decision| (optional) the k predicted frames t+1 … t+k, side by side   |
 | /planner/search | JSON (jsonschema) | decision | (optional) the root: visits, Q, prior per action; value; goal |
+| /world/annotations | foxglove.ImageAnnotations | step | (optional) agent, true and predicted goal, action |
 
 Every JSON schema is one that Foxglove's schema parser takes: one type per field, objects with their properties
 (a field that may be missing is left out of `required`, never typed as a union with null).
-| /world/annotations | foxglove.ImageAnnotations | step | (optional) agent, true and predicted goal, action |
 
 The metadata record `dynplan` holds the format and version, the world config (JSON), seed, height, width,
 n_frames, agent_start (JSON) and the dynplan version. Log times start at a fixed epoch rather than the wall

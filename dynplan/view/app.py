@@ -10,6 +10,7 @@ rename, with a manifest of every file's size: a folder is either the whole app o
 from __future__ import annotations
 
 import base64
+import fcntl
 import hashlib
 import json
 import os
@@ -86,7 +87,8 @@ def app_files(folder: Path) -> dict[str, Path]:
 
 def install(cache: Path, say: Callable[[str], None] = print) -> Path:
     """Fetch, check and unpack the pinned app into `cache` (nothing to do where it is installed); returns its folder.
-    An InputError names what is missing (npm) or wrong (a tarball whose digest is not the pinned one)."""
+    An InputError names what is missing (npm) or wrong (a tarball whose digest is not the pinned one). Installs into
+    one cache take turns (a lock file), and what an interrupted one left is removed by the next."""
     if (found := installed_app(cache)) is not None:
         return found
     npm = shutil.which("npm")
@@ -94,6 +96,16 @@ def install(cache: Path, say: Callable[[str], None] = print) -> Path:
         raise InputError("npm not found: the viewer fetches Foxglove Studio from the npm registry with it "
                          "(Debian: apt-get install npm)")  # fmt: skip
     cache.mkdir(parents=True, exist_ok=True)
+    with open(cache / ".install.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, or the process ends
+        if (found := installed_app(cache)) is not None:  # another install finished while this one waited
+            return found
+        for stale in cache.glob(".install-*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        return _install(npm, cache, say)
+
+
+def _install(npm: str, cache: Path, say: Callable[[str], None]) -> Path:
     with tempfile.TemporaryDirectory(prefix=".install-", dir=cache) as work:
         work = Path(work)
         say(f"fetching Foxglove Studio {STUDIO_VERSION} and React 17 from the npm registry (37 MB, once) into {cache}")

@@ -1,8 +1,9 @@
 """Headless Chromium driven over the Chrome DevTools Protocol: open a page, evaluate in it, take a screenshot.
 
-The browser starts with its own temporary profile, no background networking, and a host resolver that resolves
-nothing but 127.0.0.1, so a page it shows cannot reach another machine; every request the page makes is recorded
-(`requests`) so that a caller can check that none was meant to.
+The browser starts with its own temporary profile, no background networking, a host resolver that resolves
+nothing but 127.0.0.1 and, for addresses, a proxy on a closed local port (loopback bypasses it), so a page it
+shows reaches nothing but this machine's loopback; every request the page makes is recorded (`requests`) so that
+a caller can check that none was meant to go elsewhere.
 """
 
 from __future__ import annotations
@@ -17,17 +18,31 @@ import subprocess
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 from websockets.sync.client import connect
 
-from dynplan.cli import InputError
+from dynplan.cli import InputError, die_with_parent
 
 CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
-FLAGS = ("--headless=new", "--remote-debugging-port=0", "--no-first-run", "--no-default-browser-check",
-         "--disable-background-networking", "--disable-component-update", "--disable-sync", "--disable-extensions",
-         "--disable-dev-shm-usage", "--hide-scrollbars", "--mute-audio", "--use-angle=swiftshader",
-         "--enable-unsafe-swiftshader", "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1")  # fmt: skip
+FLAGS = (
+    "--headless=new",
+    "--remote-debugging-port=0",
+    "--no-first-run",
+    "--no-default-browser-check",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-extensions",
+    "--disable-dev-shm-usage",
+    "--hide-scrollbars",
+    "--mute-audio",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1",
+    "--proxy-server=127.0.0.1:9",
+)  # fmt: skip  (names resolve nowhere; addresses go to a closed proxy port)
 START_TIMEOUT_S = 30.0
 
 
@@ -55,19 +70,21 @@ class Browser:
         flags = [*FLAGS, f"--user-data-dir={self._profile.name}", f"--window-size={self.size[0]},{self.size[1]}"]
         if hasattr(os, "geteuid") and os.geteuid() == 0:
             flags.append("--no-sandbox")  # Chromium refuses to start its sandbox as root
-        self._process = subprocess.Popen(
-            [self.executable, *flags, "about:blank"],
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,
-        )  # fmt: skip  (its helpers end with it, below)
+        try:  # its own process group, so that its helpers end with it; and it ends if this process dies
+            self._process = subprocess.Popen([self.executable, *flags, "about:blank"], stdin=subprocess.DEVNULL,
+                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                             start_new_session=True, preexec_fn=die_with_parent)  # fmt: skip
+        except OSError as error:
+            self._profile.cleanup()
+            raise InputError(f"{self.executable}: cannot start ({error.strerror})") from None
         try:
             self._socket = connect(self._page_socket(), max_size=None, open_timeout=START_TIMEOUT_S)
             self.call("Emulation.setDeviceMetricsOverride", width=self.size[0], height=self.size[1],
                       deviceScaleFactor=1, mobile=False)  # fmt: skip
             for domain in ("Page", "Network", "Runtime"):
                 self.call(f"{domain}.enable")
+            # the app reads files in web workers: attach to each as it starts, paused until it is watched too
+            self.call("Target.setAutoAttach", autoAttach=True, waitForDebuggerOnStart=True, flatten=True)
         except BaseException:
             self.__exit__()
             raise
@@ -104,29 +121,48 @@ class Browser:
         raise InputError(f"{self.executable} did not open its DevTools port within {START_TIMEOUT_S:g} s")
 
     def call(self, method: str, **params) -> dict:
-        """Send one DevTools command and return its result, recording the events that arrive meanwhile."""
-        self._next_id += 1
-        self._socket.send(json.dumps({"id": self._next_id, "method": method, "params": params}))
+        """Send one DevTools command to the page and return its result, recording the events that arrive meanwhile."""
+        sent = self._send(method, None, **params)
         while True:
             message = json.loads(self._socket.recv(timeout=120))
-            if message.get("id") == self._next_id:
+            if message.get("id") == sent and "sessionId" not in message:
                 if "error" in message:
                     raise RuntimeError(f"DevTools {method}: {message['error'].get('message')}")
                 return message.get("result", {})
             self._event(message)
 
+    def _send(self, method: str, session: str | None, **params) -> int:
+        """Send a command to the page (`session` None) or to an attached worker, not waiting for its answer."""
+        self._next_id += 1
+        message = {"id": self._next_id, "method": method, "params": params}
+        self._socket.send(json.dumps(message | ({"sessionId": session} if session else {})))
+        return self._next_id
+
     def _event(self, message: dict) -> None:
         method, params = message.get("method"), message.get("params", {})
         if method == "Network.requestWillBeSent":
             self.requests.append(params["request"]["url"])
+        elif method == "Target.attachedToTarget":  # a worker: watch its requests and errors, then let it run
+            session = params["sessionId"]
+            for command in ("Network.enable", "Runtime.enable", "Runtime.runIfWaitingForDebugger"):
+                self._send(command, session)
+            self._send("Target.setAutoAttach", session, autoAttach=True, waitForDebuggerOnStart=True, flatten=True)
+        elif method == "Page.loadEventFired":
+            self._loaded = True
         elif method == "Runtime.exceptionThrown":
             details = params["exceptionDetails"]
             self.errors.append(details.get("exception", {}).get("description") or details.get("text", ""))
 
-    def open(self, url: str) -> None:
+    def open(self, url: str, timeout_s: float = START_TIMEOUT_S) -> None:
+        """Navigate to `url` and wait for its load event (so that what is evaluated next is evaluated in it)."""
+        self._loaded = False
         self.call("Page.navigate", url=url)
+        deadline = time.monotonic() + timeout_s
+        while not self._loaded and time.monotonic() < deadline:
+            with contextlib.suppress(TimeoutError):
+                self._event(json.loads(self._socket.recv(timeout=max(deadline - time.monotonic(), 0.01))))
 
-    def evaluate(self, expression: str):
+    def evaluate(self, expression: str) -> Any:
         """The value of a JavaScript expression in the page (awaited where it is a promise)."""
         result = self.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
         if "exceptionDetails" in result:

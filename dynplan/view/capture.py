@@ -67,13 +67,14 @@ class Panel:
 @dataclass(frozen=True)
 class ViewReport:
     """What the app showed of a log: the topics it listed (name → schema), its Problems list, the panels, the
-    requests the page sent elsewhere than the viewer's server, the page's uncaught errors, and the seconds from
-    opening the page to the picture."""
+    requests the page sent elsewhere than the viewer's server and how many it sent for the log, the page's uncaught
+    errors, and the seconds from opening the page to the picture."""
 
     topics: dict[str, str]
     problems: tuple[str, ...]
     panels: tuple[Panel, ...]
     outside_requests: tuple[str, ...]
+    log_requests: int  # the page's requests for the log (the app reads it in byte ranges)
     page_errors: tuple[str, ...]
     seconds: float
     complete: bool  # every image panel drew before the timeout
@@ -87,11 +88,12 @@ class ViewReport:
 @dataclass(frozen=True)
 class CaptureSettings:
     """How to take the picture: at `at_s` seconds of log time (None: once every panel has something), `size` CSS
-    pixels, giving up waiting for the panels after `timeout_s`."""
+    pixels, giving up waiting for the panels after `timeout_s`, served on `port` (0: a free one)."""
 
     at_s: float | None = None
     size: tuple[int, int] = (1600, 1000)
     timeout_s: float = 60.0
+    port: int = 0
 
 
 def view_query(origin: str, log_url: str, at_s: float | None = None) -> str:
@@ -107,7 +109,7 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
     """Show `log` in the app at `app` with `layout`, write the screenshot to `out` (atomically) and report. The
     time shown is `settings.at_s`, or else the first at which every topic the layout reads has had a message."""
     table, (log_url,) = routes(app, layout, [log])
-    with ViewServer(table) as server, Browser(chromium, *settings.size) as browser:
+    with ViewServer(table, settings.port) as server, Browser(chromium, *settings.size) as browser:
         start = time.monotonic()
         firsts = first_times(log)
         at_s = settings.at_s if settings.at_s is not None else max(firsts.get(t, 0.0) for t in layout_topics(layout))
@@ -125,12 +127,13 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
         outside = tuple(u for u in browser.requests if u.split(":")[0] in ("http", "https", "ws", "wss")
                         and not u.startswith(server.origin + "/"))  # fmt: skip
         errors = tuple(browser.errors)
+        log_requests = sum(u == server.origin + log_url for u in browser.requests)
     with atomic_path(out) as tmp:
         Path(tmp).write_bytes(png)
     pixels = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
     panels = tuple(Panel(p["id"], tuple(p["box"]), p["canvas"] and tuple(p["canvas"]), _drawn(p, pixels))
                    for p in state["panels"])  # fmt: skip
-    return ViewReport(_topics(state["lines"]), problems, panels, outside, errors, seconds, complete)
+    return ViewReport(_topics(state["lines"]), problems, panels, outside, log_requests, errors, seconds, complete)
 
 
 def _image_topics(layout: Path) -> dict[str, str]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import errno
 import re
+import socket
 import sys
 import threading
 from collections.abc import Sequence
@@ -47,8 +48,9 @@ class ViewServer:
         try:
             self._server = _Server(("127.0.0.1", port), handler)
         except OSError as error:
-            why = "already in use" if error.errno == errno.EADDRINUSE else f"cannot listen ({error.strerror})"
-            raise InputError(f"--port {port}: {why} on 127.0.0.1; choose another, or 0 for a free one") from None
+            raise InputError(_port_problem(port, error)) from None
+        bound = self._server.server_address[1]
+        handler.hosts = frozenset({f"127.0.0.1:{bound}", f"localhost:{bound}"})
         self._thread = threading.Thread(target=self._server.serve_forever, name="dynplan-view", daemon=True)
 
     @property
@@ -64,6 +66,21 @@ class ViewServer:
         self._server.server_close()
 
 
+def check_port(port: int) -> None:
+    """Refuse a port that cannot be listened on at 127.0.0.1 (0 is always free) before anything slow starts."""
+    if port:
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", port))
+            except OSError as error:
+                raise InputError(_port_problem(port, error)) from None
+
+
+def _port_problem(port: int, error: OSError) -> str:
+    why = "already in use" if error.errno == errno.EADDRINUSE else f"cannot listen ({error.strerror})"
+    return f"--port {port}: {why} on 127.0.0.1; choose another, or 0 for a free one"
+
+
 class _Server(ThreadingHTTPServer):
     daemon_threads = True
 
@@ -77,6 +94,7 @@ class _Handler(BaseHTTPRequestHandler):
     """GET and HEAD of the table's files, whole or one byte range."""
 
     table: dict[str, Path] = {}
+    hosts: frozenset[str] = frozenset()
     protocol_version = "HTTP/1.1"
 
     def do_HEAD(self) -> None:  # http.server's naming
@@ -86,6 +104,9 @@ class _Handler(BaseHTTPRequestHandler):
         self._answer(body=True)
 
     def _answer(self, body: bool) -> None:
+        if self.headers.get("Host") not in self.hosts:  # a page of another site, its name rebound to 127.0.0.1
+            self.send_error(HTTPStatus.FORBIDDEN)
+            return
         path = self.table.get(urlsplit(self.path).path)
         if path is None:
             self.send_error(HTTPStatus.NOT_FOUND)
@@ -129,11 +150,13 @@ def _span(header: str | None, size: int) -> tuple[int, int] | bool | None:
     """The inclusive byte span of a `Range: bytes=a-b` header (one range; a suffix `-n` too); None without a header
     (or one this server does not parse: the whole file), False where it is outside the file."""
     match = _RANGE.match(header.strip()) if header else None
-    if match is None or match.groups() == ("", ""):
+    if match is None or match.groups() == ("", "") or max(map(len, match.groups())) > 20:
         return None
     first, last = match.groups()
     if first == "":
         start, end = max(size - int(last), 0), size - 1
+    elif last and int(last) < int(first):
+        return None  # an invalid range is ignored (RFC 9110 §14.2): the whole file
     else:
         start, end = int(first), min(int(last), size - 1) if last else size - 1
     return (start, end) if start <= end and start < size else False
