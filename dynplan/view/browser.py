@@ -2,7 +2,7 @@
 
 The browser starts with its own temporary profile, no background networking, a host resolver that resolves
 nothing but 127.0.0.1 and, for addresses, a proxy on a closed local port (loopback bypasses it), so a page it
-shows reaches nothing but this machine's loopback; every request the page makes is recorded (`requests`) so that
+shows reaches nothing but the loopback interface; every request the page makes is recorded (`requests`) so that
 a caller can check that none was meant to go elsewhere.
 """
 
@@ -131,11 +131,12 @@ class Browser:
                 return message.get("result", {})
             self._event(message)
 
-    def _send(self, method: str, session: str | None, **params) -> int:
-        """Send a command to the page (`session` None) or to an attached worker, not waiting for its answer."""
+    def _send(self, method: str, worker: str | None, **params) -> int:
+        """Send a command to the page (`worker` None) or to the attached worker of that DevTools sessionId, not
+        waiting for its answer."""
         self._next_id += 1
         message = {"id": self._next_id, "method": method, "params": params}
-        self._socket.send(json.dumps(message | ({"sessionId": session} if session else {})))
+        self._socket.send(json.dumps(message | ({"sessionId": worker} if worker else {})))
         return self._next_id
 
     def _event(self, message: dict) -> None:
@@ -143,10 +144,10 @@ class Browser:
         if method == "Network.requestWillBeSent":
             self.requests.append(params["request"]["url"])
         elif method == "Target.attachedToTarget":  # a worker: watch its requests and errors, then let it run
-            session = params["sessionId"]
+            worker = params["sessionId"]
             for command in ("Network.enable", "Runtime.enable", "Runtime.runIfWaitingForDebugger"):
-                self._send(command, session)
-            self._send("Target.setAutoAttach", session, autoAttach=True, waitForDebuggerOnStart=True, flatten=True)
+                self._send(command, worker)
+            self._send("Target.setAutoAttach", worker, autoAttach=True, waitForDebuggerOnStart=True, flatten=True)
         elif method == "Page.loadEventFired":
             self._loaded = True
         elif method == "Runtime.exceptionThrown":
