@@ -57,9 +57,10 @@ def _check(args: argparse.Namespace) -> None:
         if Path(args.screenshot).suffix.lower() != ".png":
             raise InputError(f"--screenshot {args.screenshot}: must end in .png")
         check_output(args.screenshot, "--screenshot", "file", inputs=(args.log,))
-    if args.screenshot is None and (args.at is not None or args.timeout is not None):
-        option = "--at" if args.at is not None else "--timeout"
-        raise InputError(f"{option}: only with --screenshot (in the app, drag the timeline)")
+    if args.screenshot is None and args.at is not None:
+        raise InputError("--at: only with --screenshot (in the app, drag the timeline)")
+    if args.screenshot is None and args.timeout is not None:
+        raise InputError("--timeout: only with --screenshot (it bounds the wait for the picture)")
     if args.cache is not None:
         check_output(args.cache, "--cache", "folder", inputs=(args.log,))
     log = read_episode_log(args.log)
