@@ -1,0 +1,111 @@
+"""Atari Freeway as a world that does not depend on the agent: the real game and, in lockstep, a shadow game whose
+chicken never moves (it always plays NOOP), both in the Arcade Learning Environment (`ale-py`, the `atari` extra).
+
+The cars of Freeway do not depend on the chicken: outside the real chicken's box, the idle chicken's box on the
+bottom sidewalk and the score digits, the shadow's screen equals the real one at every step
+(`tests/test_freeway.py` checks it). So the shadow's screen, cropped to the lanes, is the world's frame — what a
+world model learns and imagines — and the real chicken is the agent, read from RAM. An episode is determined by its
+`FreewayEpisode` (the game mode and the NOOP steps played before it starts): its world frames are the same bytes
+every time (palette indices of the emulator's screen, no colour conversion), and a later NOOP start is the same
+traffic one step further on.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from pydantic import Field
+
+from dynplan.config import Config
+from dynplan.extras import require
+
+#: Emulator frames per agent step (Gymnasium's `ALE/Freeway-v5` default).
+FRAMESKIP = 4
+#: Agent steps from the game's start to its end (its 2 min 16 s timer at frameskip 4), the NOOP start included.
+GAME_STEPS = 2048
+#: The lanes, (rows, columns) of the screen: 10 lanes 16 rows apart, cars 8 × 10 pixels.
+LANE_ROWS = slice(27, 181)
+LANE_COLUMNS = slice(8, 160)
+#: RAM byte of the chicken's height above the bottom (6 on the sidewalk … 177 at the top).
+CHICKEN_Y_RAM = 14
+#: RAM byte of the chicken's timer: ≥ 128 while it waits on the sidewalk after a crossing, 1–127 while a car's hit
+#: knocks it back and stuns it (it counts down by 2 a step), 0 when it obeys its actions.
+CHICKEN_TIMER_RAM = 106
+#: Screen columns of the player's chicken; its box spans rows 193 − y … 200 − y.
+CHICKEN_COLUMNS = slice(44, 51)
+#: The idle chicken's box (the shadow's, on the bottom sidewalk) and the score digits: where the screens differ.
+IDLE_CHICKEN_ROWS = slice(187, 195)
+SCORE_BOX = (slice(5, 13), slice(41, 55))
+ACTIONS = ("NOOP", "UP", "DOWN")
+
+
+class FreewayEpisode(Config):
+    """Which Freeway episode: the game mode (traffic; modes 4–7 change speeds during the episode) and the NOOP steps
+    played before the agent starts (the traffic's phase)."""
+
+    mode: int = Field(0, ge=0, le=7, description="the game mode (its traffic)")
+    noop_start: int = Field(0, ge=0, le=30, description="NOOP steps before the agent's first")
+
+
+@dataclass(frozen=True)
+class FreewayStep:
+    """One agent step: the world's frame (lanes only, palette indices), the chicken's height and timer, the game's
+    reward (1 at each crossing) and whether the game has ended."""
+
+    frame: np.ndarray
+    chicken_y: int
+    chicken_timer: int
+    reward: float
+    done: bool
+
+
+class FreewayGame:
+    """The real game and its NOOP shadow, in lockstep, playing `episode` (default: mode 0, no NOOP start)."""
+
+    def __init__(self, episode: FreewayEpisode | None = None) -> None:
+        self.episode = episode = episode or FreewayEpisode()
+        self.real, self.shadow = _emulator(episode.mode), _emulator(episode.mode)
+        self._actions = self.real.getMinimalActionSet()
+        for _ in range(episode.noop_start):
+            self._advance(0)
+
+    def _advance(self, action: int) -> float:
+        reward = 0.0
+        for _ in range(FRAMESKIP):
+            reward += self.real.act(self._actions[action])
+            self.shadow.act(self._actions[0])
+        return reward
+
+    def world_frame(self) -> np.ndarray:
+        """The world without the agent now: the shadow's lanes, (154, 152) uint8 palette indices."""
+        return self.shadow.getScreen()[LANE_ROWS, LANE_COLUMNS].copy()
+
+    @property
+    def chicken_y(self) -> int:
+        return int(self.real.getRAM()[CHICKEN_Y_RAM])
+
+    @property
+    def chicken_timer(self) -> int:
+        return int(self.real.getRAM()[CHICKEN_TIMER_RAM])
+
+    def step(self, action: int) -> FreewayStep:
+        """Play `action` (0 NOOP, 1 UP, 2 DOWN) for one agent step in the real game; the shadow plays NOOP."""
+        if action not in (0, 1, 2):
+            raise ValueError(f"action={action} is invalid; valid range [0, 2] (NOOP, UP, DOWN)")
+        reward = self._advance(action)
+        return FreewayStep(self.world_frame(), self.chicken_y, self.chicken_timer, reward, self.real.game_over())
+
+
+def _emulator(mode: int):
+    """An ALE emulator of Freeway in `mode`, deterministic (no sticky actions), one emulator frame per act."""
+    ale_py = require("ale_py", "atari", "Atari Freeway")
+    ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Error)  # before the first emulator: no banner
+    ale = ale_py.ALEInterface()
+    ale.setInt("random_seed", 0)
+    ale.setFloat("repeat_action_probability", 0.0)
+    ale.setInt("frame_skip", 1)
+    ale.loadROM(ale_py.roms.get_rom_path("freeway"))
+    ale.setMode(mode)
+    ale.reset_game()
+    return ale

@@ -1,0 +1,99 @@
+"""Atari Freeway as a world that does not depend on the agent: the NOOP shadow's screen is the real game's but for
+the chickens and the score, at every step of random play; its lane frames are the same bytes for the same episode
+and a later NOOP start is the same traffic further on; the game is the one the public scoreboard plays (2,048
+steps, always-UP scores 21)."""
+
+from __future__ import annotations
+
+import builtins
+
+import numpy as np
+import pytest
+
+from dynplan.config import ConfigError
+from dynplan.env import freeway
+from dynplan.env.freeway import FreewayEpisode, FreewayGame
+from dynplan.extras import MissingExtra
+
+pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
+
+
+def _outside_the_chickens_and_score(y: int) -> np.ndarray:
+    """Screen pixels outside the real chicken's box at height `y`, the idle chicken's and the score's (each grown by
+    one pixel: the sprite's edge rows)."""
+    keep = np.ones((210, 160), bool)
+    keep[max(193 - y - 1, 0) : 200 - y + 1, freeway.CHICKEN_COLUMNS] = False
+    keep[freeway.IDLE_CHICKEN_ROWS, freeway.CHICKEN_COLUMNS] = False
+    keep[freeway.SCORE_BOX] = False
+    return keep
+
+
+def test_the_shadow_is_the_real_game_without_its_chicken():
+    game, rng = FreewayGame(FreewayEpisode(mode=0, noop_start=3)), np.random.default_rng(0)
+    differing, crossings = 0, 0
+    for _ in range(600):
+        step = game.step(int(rng.choice(3, p=[0.2, 0.6, 0.2])))
+        real, shadow = game.real.getScreen(), game.shadow.getScreen()
+        differing += bool((real != shadow)[_outside_the_chickens_and_score(step.chicken_y)].any())
+        crossings += step.reward
+        np.testing.assert_array_equal(step.frame, shadow[freeway.LANE_ROWS, freeway.LANE_COLUMNS])
+    assert differing == 0
+    assert crossings >= 1  # the chicken crossed, was knocked back, waited: the states a planner meets
+
+
+def test_an_episodes_frames_are_the_same_bytes_and_a_later_start_is_the_same_traffic_further_on():
+    def frames(noop_start: int, n: int = 40) -> list[np.ndarray]:
+        game = FreewayGame(FreewayEpisode(noop_start=noop_start))
+        return [game.step(0).frame for _ in range(n)]
+
+    first, again, later = frames(7), frames(7), frames(8)
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(first, again, strict=True))
+    assert all(a.tobytes() == b.tobytes() for a, b in zip(first[1:], later[:-1], strict=True))
+    assert first[0].shape == (154, 152) and first[0].dtype == np.uint8
+    assert len(np.unique(np.concatenate([f.ravel() for f in first]))) > 4  # road, lane marks and cars
+
+
+@pytest.mark.slow
+def test_the_game_lasts_2048_steps_and_always_up_scores_21():
+    game, steps, score = FreewayGame(), 0, 0.0
+    while True:
+        step = game.step(1)
+        steps, score = steps + 1, score + step.reward
+        if step.done:
+            break
+    assert (steps, score) == (freeway.GAME_STEPS, 21.0)
+
+
+def test_the_chickens_timer_is_a_knock_or_a_wait():
+    game, rng, seen = FreewayGame(), np.random.default_rng(1), set()
+    for _ in range(400):
+        before = game.chicken_y
+        step = game.step(int(rng.choice(3, p=[0.1, 0.8, 0.1])))
+        if step.reward:
+            assert step.chicken_y == 6 and step.chicken_timer >= 128  # back on the sidewalk, waiting
+            seen.add("wait")
+        elif 0 < step.chicken_timer < 128 and step.chicken_y < before:
+            seen.add("knock")  # a car hit it: pushed down whatever it was told
+    assert seen == {"wait", "knock"}
+
+
+def test_bad_episodes_and_actions_are_refused_in_one_line():
+    with pytest.raises(ConfigError, match=r"mode=8 is invalid .*valid range \[0, 7\]"):
+        FreewayEpisode(mode=8)
+    with pytest.raises(ConfigError, match=r"noop_start=31 is invalid .*valid range \[0, 30\]"):
+        FreewayEpisode(noop_start=31)
+    with pytest.raises(ValueError, match=r"action=3 is invalid; valid range \[0, 2\]"):
+        FreewayGame().step(3)
+
+
+def test_without_the_extra_the_game_says_how_to_install_it(monkeypatch):
+    real_import = builtins.__import__
+
+    def no_ale(name, *args, **kwargs):
+        if name.split(".")[0] == "ale_py":
+            raise ImportError(name)
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_ale)
+    with pytest.raises(MissingExtra, match=r"Atari Freeway needs the ale_py package: pip install -e '\.\[atari\]'"):
+        FreewayGame()
