@@ -1,7 +1,8 @@
 """Atari Freeway as a world that does not depend on the agent: the NOOP shadow's screen is the real game's but for
 the chickens and the score, at every step of random play; its lane frames are the same bytes for the same episode
 and a later NOOP start is the same traffic further on; the game is the one the public scoreboard plays (2,048
-steps, always-UP scores 21)."""
+steps, always-UP scores 21); and the chicken's rule, which the planner simulates, predicts the emulator's chicken
+from the world's frames."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pytest
 
 from dynplan.config import ConfigError
 from dynplan.env import freeway
-from dynplan.env.freeway import FreewayEpisode, FreewayGame
+from dynplan.env.freeway import Chicken, FreewayEpisode, FreewayGame, chicken_step
 from dynplan.extras import MissingExtra
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
@@ -97,3 +98,37 @@ def test_without_the_extra_the_game_says_how_to_install_it(monkeypatch):
     monkeypatch.setattr(builtins, "__import__", no_ale)
     with pytest.raises(MissingExtra, match=r"Atari Freeway needs the ale_py package: pip install -e '\.\[atari\]'"):
         FreewayGame()
+
+
+def _rule_exact(episode: FreewayEpisode, p: list[float], seed: int, steps: int) -> float:
+    """The share of steps on which `chicken_step`, from the chicken's RAM state before the step and the world's
+    frame after it, gives the emulator's height."""
+    game, rng, exact = FreewayGame(episode), np.random.default_rng(seed), 0
+    for _ in range(steps):
+        now, action = Chicken(game.chicken_y, game.chicken_timer), int(rng.choice(3, p=p))
+        step = game.step(action)
+        exact += chicken_step(now, action, step.frame)[0].y == step.chicken_y
+    return exact / steps
+
+
+@pytest.mark.parametrize("mode", [0, 1])
+def test_the_chickens_rule_predicts_the_emulator(mode):
+    """Mode 0 and mode 1 (up to 3 cars a lane, faster): ≥ 97 % of the steps of random play exact, ≥ 95 % of a
+    mostly-UP play's (more crossings and hits). Measured at 99.4 % and 98.6 % on mode 0."""
+    assert _rule_exact(FreewayEpisode(mode=mode, noop_start=11), [1 / 3, 1 / 3, 1 / 3], seed=5, steps=1500) >= 0.97
+    assert _rule_exact(FreewayEpisode(mode=mode, noop_start=3), [0.1, 0.8, 0.1], seed=6, steps=1500) >= 0.95
+
+
+def test_the_rule_on_an_empty_road():
+    road = np.full((154, 152), 6, np.uint8)
+    assert chicken_step(Chicken(6), 1, road) == (Chicken(10), 0.0)  # 4 pixels a step
+    assert chicken_step(Chicken(8), 2, road) == (Chicken(6), 0.0)  # not below the sidewalk
+    assert chicken_step(Chicken(174), 1, road) == (Chicken(6, freeway.WAIT_TIMER), 1.0)  # a crossing
+    assert chicken_step(Chicken(6, 132), 1, road) == (Chicken(6, 130), 0.0)  # waiting: the action is ignored
+    assert chicken_step(Chicken(6, 130), 1, road) == (Chicken(6, 0), 0.0)  # the wait ends with the step
+    stunned = chicken_step(Chicken(50, 70), 1, road)[0]
+    assert stunned == Chicken(50, 68)  # stunned: the action is ignored
+    car = road.copy()
+    car[freeway.HIT_ROWS[0] - 60 - freeway.LANE_ROWS.start, freeway.HIT_COLUMNS] = 136
+    hit = chicken_step(Chicken(58), 1, car)[0]
+    assert hit.timer == freeway.HIT_TIMER - 1 and hit.y < 60  # hit on the way up: sliding back

@@ -38,6 +38,15 @@ CHICKEN_COLUMNS = slice(44, 51)
 IDLE_CHICKEN_ROWS = slice(187, 195)
 SCORE_BOX = (slice(5, 13), slice(41, 55))
 ACTIONS = ("NOOP", "UP", "DOWN")
+#: The chicken's rule (`chicken_step`), measured against the emulator: heights from the bottom sidewalk to the
+#: crossing, the screen rows (193 − y + 2 … 193 − y + 5) and columns where a car's pixel hits it, the timer a hit
+#: sets, the timer below which a knocked chicken stops sliding back, the timer at which its stun ends, the timer a
+#: crossing sets, and the lane frame's values that are no car (the road, the lane marks).
+BOTTOM_Y, TOP_Y = 6, 177
+HIT_ROWS, HIT_COLUMNS = (195, 199), slice(45 - LANE_COLUMNS.start, 51 - LANE_COLUMNS.start)
+HIT_TIMER, SLIDE_END, STUN_END, WAIT_TIMER = 91, 80, 64, 142
+_NO_CAR = np.zeros(256, bool)
+_NO_CAR[[6, 12, 30]] = True
 
 
 class FreewayEpisode(Config):
@@ -95,6 +104,45 @@ class FreewayGame:
             raise ValueError(f"action={action} is invalid; valid range [0, 2] (NOOP, UP, DOWN)")
         reward = self._advance(action)
         return FreewayStep(self.world_frame(), self.chicken_y, self.chicken_timer, reward, self.real.game_over())
+
+
+@dataclass(frozen=True)
+class Chicken:
+    """The chicken as the planner simulates it: its height `y` (6 on the bottom sidewalk … 177) and its `timer`
+    (RAM byte 106: ≥ 128 waiting after a crossing, 1–127 knocked back or stunned, 0 free)."""
+
+    y: int
+    timer: int = 0
+
+
+def chicken_step(chicken: Chicken, action: int, frame: np.ndarray) -> tuple[Chicken, float]:
+    """The chicken after one agent step of `action` (0 NOOP, 1 UP, 2 DOWN) in a world whose lane frame after the
+    step is `frame` (as `FreewayGame.world_frame` gives it, or a world model imagines it), and the step's reward
+    (1 for a crossing). Frame by frame, as the game: a free chicken moves 1 pixel a frame; a car's pixel in its
+    hit box sets the timer to 91 and it slides back 1 pixel a frame while the timer is ≥ 80, then stands stunned
+    until the timer passes 64; the timer counts down on every other frame; a crossing puts it on the sidewalk to
+    wait until its timer passes 128. The cars of `frame` stand for the step's four frames."""
+    y, timer = chicken.y, chicken.timer
+    for k in range(FRAMESKIP):
+        tick = k % 2 == 1
+        if timer >= 128:
+            timer = 0 if timer - tick <= 128 else timer - tick
+        elif timer > 0:
+            y = max(y - 1, BOTTOM_Y) if timer >= SLIDE_END else y
+            timer = 0 if timer - tick <= STUN_END else timer - tick
+        else:
+            y = max(y + (0, 1, -1)[action], BOTTOM_Y)
+            if y >= TOP_Y:
+                return Chicken(BOTTOM_Y, WAIT_TIMER), 1.0
+            timer = HIT_TIMER if _hit(frame, y) else 0
+    return Chicken(y, timer), 0.0
+
+
+def _hit(frame: np.ndarray, y: int) -> bool:
+    """Whether a car's pixel of the lane `frame` is in the hit box of a chicken at height `y`."""
+    top = max(HIT_ROWS[0] - y - LANE_ROWS.start, 0)
+    bottom = min(HIT_ROWS[1] - y - LANE_ROWS.start, frame.shape[0])
+    return bottom > top and bool((~_NO_CAR[frame[top:bottom, HIT_COLUMNS]]).any())
 
 
 def _emulator(mode: int):
