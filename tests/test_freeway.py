@@ -132,3 +132,21 @@ def test_the_rule_on_an_empty_road():
     car[freeway.HIT_ROWS[0] - 60 - freeway.LANE_ROWS.start, freeway.HIT_COLUMNS] = 136
     hit = chicken_step(Chicken(58), 1, car)[0]
     assert hit.timer == freeway.HIT_TIMER - 1 and hit.y < 60  # hit on the way up: sliding back
+
+
+def test_the_oracles_caution_covers_where_a_car_stood_during_the_step():
+    from dynplan.analysis.freeway_oracle import CAR_VALUE, cautious
+
+    frames = np.full((2, 154, 152), 6, np.uint8)
+    frames[0, 50, 60] = 136  # a car's pixel before the step; gone after it
+    grown = cautious(frames)[1] == CAR_VALUE
+    assert grown[48:53, 60:62].all() and grown.sum() == 5 * 2  # 2 rows up and down, 1 column right
+
+
+def test_the_oracle_waits_for_a_car_and_then_crosses():
+    from dynplan.analysis.freeway_oracle import best_action
+
+    frames = np.full((40, 154, 152), 6, np.uint8)
+    frames[1:4, 100:108, 30:50] = 136  # a car just above a chicken at height 60 for three steps
+    assert best_action(Chicken(60), frames, 0, 6) != 1  # UP now walks into it
+    assert best_action(Chicken(60), frames, 4, 6) == 1  # once it has passed, up

@@ -1,0 +1,129 @@
+"""How well a planner that knows Freeway's true future can play: the oracle's ceiling for the chicken's rule.
+
+The world does not depend on the chicken, so the true future is the NOOP shadow's frames, recorded before the
+episode is played. At each step an exact search over the chicken's rule (`dynplan.env.freeway.chicken_step`) —
+every action sequence of the horizon k, states that coincide merged — picks the action that crosses most, then
+ends highest, and the real emulator plays it. With caution, each step's frame holds the cars of the frame before
+it as well, grown by 2 rows up and down and 1 column (the chicken's whole sprite box rather than the rule's hit
+box), because a step-level frame does not show where the cars stood during the step's four emulator frames.
+
+`python -m dynplan.analysis.freeway_oracle --mode 0 --noop-starts 0 7 21 --horizons 8 12 16 [--no-caution]`
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from dynplan.cli import Bounded, CommandParser, run_command
+from dynplan.env.freeway import Chicken, FreewayEpisode, FreewayGame, chicken_step
+
+ROAD_VALUES = (6, 12, 30)
+CAR_VALUE = 136
+#: The caution's growth of each car pixel: rows above and below, columns to the right.
+GROW_ROWS, GROW_COLUMNS = 2, 1
+
+
+def true_future(episode: FreewayEpisode) -> np.ndarray:
+    """The episode's world frames from the agent's start to the game's end, (T + 1, 154, 152)."""
+    game = FreewayGame(episode)
+    frames = [game.world_frame()]
+    while not (step := game.step(0)).done:
+        frames.append(step.frame)
+    frames.append(step.frame)
+    return np.stack(frames)
+
+
+def cautious(frames: np.ndarray) -> np.ndarray:
+    """Each step's frame with the previous frame's cars too, each car pixel grown by the caution's rows and columns
+    (car pixels become CAR_VALUE, the rest road)."""
+    cars = ~np.isin(frames, ROAD_VALUES)
+    cars[1:] |= cars[:-1]
+    grown = cars.copy()
+    for shift in range(1, GROW_ROWS + 1):
+        grown[:, shift:] |= cars[:, :-shift]
+        grown[:, :-shift] |= cars[:, shift:]
+    grown[:, :, GROW_COLUMNS:] |= grown[:, :, :-GROW_COLUMNS].copy()
+    return np.where(grown, CAR_VALUE, ROAD_VALUES[0]).astype(np.uint8)
+
+
+def best_action(chicken: Chicken, frames: np.ndarray, t: int, k: int) -> int:
+    """The first action of the best k-step plan from `chicken` at step t: most crossings, then, free of a car,
+    highest (a knocked or stunned chicken counts 30 pixels lower)."""
+    layer: dict[Chicken, tuple[float, int]] = {chicken: (0.0, 1)}
+    for depth in range(min(k, len(frames) - 1 - t)):
+        following: dict[Chicken, tuple[float, int]] = {}
+        for state, (reward, first) in layer.items():
+            for action in (1, 0, 2):
+                after, gained = chicken_step(state, action, frames[t + 1 + depth])
+                value = (reward + gained, action if depth == 0 else first)
+                if after not in following or value[0] > following[after][0]:
+                    following[after] = value
+        layer = following
+    return max(layer.items(), key=lambda item: (item[1][0], _height(item[0])))[1][1]
+
+
+def _height(chicken: Chicken) -> int:
+    return chicken.y - (30 if 0 < chicken.timer < 128 else 0)
+
+
+@dataclass(frozen=True)
+class OracleEpisode:
+    """An episode the oracle played: the game's score, the cars that hit the chicken, median decision ms."""
+
+    mode: int
+    noop_start: int
+    horizon: int
+    caution: bool
+    score: float
+    hits: int
+    decision_ms: float
+
+
+def play(episode: FreewayEpisode, horizon: int, caution: bool = True) -> OracleEpisode:
+    """Play the real game with the oracle's search at `horizon`; the score is the emulator's."""
+    frames = true_future(episode)
+    frames = cautious(frames) if caution else frames
+    game, t, score, hits, ms = FreewayGame(episode), 0, 0.0, 0, []
+    while True:
+        chicken = Chicken(game.chicken_y, game.chicken_timer)
+        start = time.perf_counter()
+        action = best_action(chicken, frames, t, horizon)
+        ms.append((time.perf_counter() - start) * 1e3)
+        step = game.step(action)
+        hits += chicken.timer == 0 and 0 < step.chicken_timer < 128
+        score, t = score + step.reward, t + 1
+        if step.done:
+            return OracleEpisode(episode.mode, episode.noop_start, horizon, caution, score, hits,
+                                 round(float(np.median(ms)), 3))  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    parser = CommandParser(prog="python -m dynplan.analysis.freeway_oracle", description=__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--mode", type=Bounded(int, 0, 7), default=0, help="the game mode")
+    parser.add_argument("--noop-starts", type=Bounded(int, 0, 30), nargs="+", default=[0], help="the episodes")
+    parser.add_argument("--horizons", type=Bounded(int, 1, 64), nargs="+", default=[8], help="the search's k")
+    parser.add_argument("--no-caution", action="store_true", help="plan on the step's frame alone")
+    parser.add_argument("--json", action="store_true", help="print the episodes as JSON")
+    args = parser.parse_args(argv)
+    rows = []
+    for horizon in args.horizons:
+        for noop_start in args.noop_starts:
+            played = play(FreewayEpisode(mode=args.mode, noop_start=noop_start), horizon, not args.no_caution)
+            rows.append(asdict(played))
+            if not args.json:
+                print(f"mode {played.mode} noop {played.noop_start:2d} k {horizon:2d} caution {played.caution}: "
+                      f"score {played.score:g}, hits {played.hits}, {played.decision_ms:.2f} ms a decision",
+                      flush=True)  # fmt: skip
+    if args.json:
+        print(json.dumps(rows))
+    return rows
+
+
+if __name__ == "__main__":
+    run_command(main, "python -m dynplan.analysis.freeway_oracle")
