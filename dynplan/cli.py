@@ -131,6 +131,11 @@ def interrupt_while_loading() -> None:
         signal.signal(signal.SIGINT, _interrupted_while_loading)
 
 
+def add_debug_option(parser: argparse.ArgumentParser) -> None:
+    """The `--debug` option (read by `run_command`): print the traceback of an unexpected error."""
+    parser.add_argument("--debug", action="store_true", help="print the whole traceback of an unexpected error")
+
+
 def die_with_parent() -> None:
     """In a child between fork and exec (`subprocess.Popen(preexec_fn=...)`): have the kernel end it with SIGTERM
     when the process that started it dies, however it dies (Linux; elsewhere nothing)."""

@@ -19,13 +19,13 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.cli import CommandParser
+from dynplan.cli import CommandParser, add_debug_option
 from dynplan.data.build import build_frame_store
 from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem
 from dynplan.data.verify import verify_store
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
-from flows.cli import add_debug_option, run
+from flows.cli import run
 from flows.runners import add_dask_option, checked_dask_address, dask_scheduler, task_runner
 
 

@@ -9,7 +9,6 @@ parent-death signal), points Prefect at it, drains Prefect's workers and only th
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
 import socket
@@ -30,11 +29,6 @@ from dynplan.cli import die_with_parent, run_command
 
 #: Seconds to wait for the temporary server's health check.
 STARTUP_TIMEOUT_S = 120.0
-
-
-def add_debug_option(parser: argparse.ArgumentParser) -> None:
-    """The `--debug` option (read by `run`): print the traceback of an unexpected error."""
-    parser.add_argument("--debug", action="store_true", help="print the whole traceback of an unexpected error")
 
 
 def _free_port() -> int:

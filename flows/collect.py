@@ -13,13 +13,13 @@ from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.cli import CommandParser, bounded
+from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import field_help
 from dynplan.data.collect import DEFAULT_RECORDING, CollectPlan, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
-from flows.cli import add_debug_option, run
+from flows.cli import run
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 
 

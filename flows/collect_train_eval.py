@@ -30,7 +30,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
-from dynplan.cli import CommandParser
+from dynplan.cli import CommandParser, add_debug_option
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
 from dynplan.evaluation.agent import AgentSpec
@@ -44,7 +44,7 @@ from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset
 from dynplan.pipeline.report import StageRecord, checkpoint_record, draw_figures, render_report, write_report
 from flows.artifacts import publish_report
 from flows.build_datasets import build_datasets
-from flows.cli import add_debug_option, run
+from flows.cli import run
 from flows.collect import collect_episodes
 from flows.evaluate import evaluate_planner
 from flows.runners import add_dask_option, checked_dask_address, task_runner

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from prefect import flow
 
-from dynplan.cli import Bounded, CommandParser, bounded
+from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import AGENT_SPEEDS
@@ -24,7 +24,7 @@ from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.models.registry import WORLD_MODELS
 from dynplan.paths import PathArgument, PathKind, check_output
-from flows.cli import add_debug_option, run
+from flows.cli import run
 
 
 @flow(name="replay-episode", log_prints=True)

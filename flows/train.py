@@ -19,7 +19,7 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.context import TaskRunContext
 
-from dynplan.cli import CommandParser, bounded
+from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.data.metadata import metadata_problem
 from dynplan.data.store import store_problem
@@ -36,7 +36,7 @@ from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
 from dynplan.training.tensorboard import INSTALL, MissingExtra, check_available
 from dynplan.training.vqvae import train_vqvae
 from flows.artifacts import ProgressArtifact
-from flows.cli import add_debug_option, run
+from flows.cli import run
 
 
 def _finished_key(run_dir: Path, kind: str, epochs: int) -> str | None:

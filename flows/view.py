@@ -16,7 +16,7 @@ import argparse
 import time
 from pathlib import Path
 
-from dynplan.cli import Bounded, CommandParser, InputError, run_command
+from dynplan.cli import Bounded, CommandParser, InputError, add_debug_option, run_command
 from dynplan.logs.format import FRAME_PERIOD_NS, STUDIO_LAYOUT, panel_topics
 from dynplan.logs.reader import read_episode_log
 from dynplan.paths import PathArgument, PathKind, check_output
@@ -35,14 +35,14 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--screenshot", type=PathArgument(PathKind.OUTPUT_FILE),
                         help="write a picture (.png) of the view from headless Chromium, not serve")  # fmt: skip
     parser.add_argument("--at", type=Bounded(float, 0.0, 86400.0),
-                        help="seconds of log time to show (default: the start); within the log's duration")  # fmt: skip
+                        help="seconds of log time to show; default: once every panel has a message")  # fmt: skip
     parser.add_argument("--timeout", type=Bounded(float, 1.0, 3600.0),
                         help="seconds the screenshot waits for the app to draw (default 60)")  # fmt: skip
     parser.add_argument("--install", action="store_true",
                         help="fetch the app into the cache (done on first use anyway); alone, only that")  # fmt: skip
     parser.add_argument("--cache", type=PathArgument(PathKind.OUTPUT_FOLDER),
                         help=f"the app's cache (default $DYNPLAN_VIEWER_CACHE or {default_cache()})")  # fmt: skip
-    parser.add_argument("--debug", action="store_true", help="print the whole traceback of an unexpected error")
+    add_debug_option(parser)
     return parser
 
 

@@ -19,10 +19,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from dynplan.cli import Bounded, CommandParser, run_command
-from dynplan.env.freeway import Chicken, FreewayEpisode, FreewayGame, chicken_step
+from dynplan.cli import Bounded, CommandParser, bounded, run_command
+from dynplan.config import field_help
+from dynplan.env.freeway import ROAD_VALUES, Chicken, FreewayEpisode, FreewayGame, chicken_step
 
-ROAD_VALUES = (6, 12, 30)
 CAR_VALUE = 136
 #: The caution's growth of each car pixel: rows above and below, columns to the right.
 GROW_ROWS, GROW_COLUMNS = 2, 1
@@ -68,7 +68,7 @@ def best_action(chicken: Chicken, frames: np.ndarray, t: int, k: int) -> int:
 
 
 def _height(chicken: Chicken) -> int:
-    return chicken.y - (30 if 0 < chicken.timer < 128 else 0)
+    return chicken.y - (30 if chicken.knocked else 0)
 
 
 @dataclass(frozen=True)
@@ -90,12 +90,12 @@ def play(episode: FreewayEpisode, horizon: int, caution: bool = True) -> OracleE
     frames = cautious(frames) if caution else frames
     game, t, score, hits, ms = FreewayGame(episode), 0, 0.0, 0, []
     while True:
-        chicken = Chicken(game.chicken_y, game.chicken_timer)
+        chicken = game.chicken
         start = time.perf_counter()
         action = best_action(chicken, frames, t, horizon)
         ms.append((time.perf_counter() - start) * 1e3)
         step = game.step(action)
-        hits += chicken.timer == 0 and 0 < step.chicken_timer < 128
+        hits += chicken.timer == 0 and step.chicken.knocked
         score, t = score + step.reward, t + 1
         if step.done:
             return OracleEpisode(episode.mode, episode.noop_start, horizon, caution, score, hits,
@@ -105,8 +105,10 @@ def play(episode: FreewayEpisode, horizon: int, caution: bool = True) -> OracleE
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = CommandParser(prog="python -m dynplan.analysis.freeway_oracle", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--mode", type=Bounded(int, 0, 7), default=0, help="the game mode")
-    parser.add_argument("--noop-starts", type=Bounded(int, 0, 30), nargs="+", default=[0], help="the episodes")
+    parser.add_argument("--mode", type=bounded(FreewayEpisode, "mode"), default=0,
+                        help=field_help(FreewayEpisode, "mode"))  # fmt: skip
+    parser.add_argument("--noop-starts", type=bounded(FreewayEpisode, "noop_start"), nargs="+", default=[0],
+                        help=field_help(FreewayEpisode, "noop_start") + ", one episode each")  # fmt: skip
     parser.add_argument("--horizons", type=Bounded(int, 1, 64), nargs="+", default=[8], help="the search's k")
     parser.add_argument("--no-caution", action="store_true", help="plan on the step's frame alone")
     parser.add_argument("--json", action="store_true", help="print the episodes as JSON")

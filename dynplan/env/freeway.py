@@ -38,15 +38,18 @@ CHICKEN_COLUMNS = slice(44, 51)
 IDLE_CHICKEN_ROWS = slice(187, 195)
 SCORE_BOX = (slice(5, 13), slice(41, 55))
 ACTIONS = ("NOOP", "UP", "DOWN")
+#: The lane frame's values that are no car: the road and the lane marks.
+ROAD_VALUES = (6, 12, 30)
 #: The chicken's rule (`chicken_step`), measured against the emulator: heights from the bottom sidewalk to the
-#: crossing, the screen rows (193 − y + 2 … 193 − y + 5) and columns where a car's pixel hits it, the timer a hit
-#: sets, the timer below which a knocked chicken stops sliding back, the timer at which its stun ends, the timer a
-#: crossing sets, and the lane frame's values that are no car (the road, the lane marks).
+#: crossing, the screen rows (195 − y … 198 − y) and the lane frame's columns where a car's pixel hits it (the
+#: chicken's columns but the first), the timer a hit sets, the timer below which a knocked chicken stops sliding
+#: back, the timer at which its stun ends, the timer a crossing sets and the one at which its wait ends.
 BOTTOM_Y, TOP_Y = 6, 177
-HIT_ROWS, HIT_COLUMNS = (195, 199), slice(45 - LANE_COLUMNS.start, 51 - LANE_COLUMNS.start)
-HIT_TIMER, SLIDE_END, STUN_END, WAIT_TIMER = 91, 80, 64, 142
+HIT_ROWS = (195, 199)
+HIT_COLUMNS = slice(CHICKEN_COLUMNS.start + 1 - LANE_COLUMNS.start, CHICKEN_COLUMNS.stop - LANE_COLUMNS.start)
+HIT_TIMER, SLIDE_END, STUN_END, WAIT_TIMER, WAIT_END = 91, 80, 64, 142, 128
 _NO_CAR = np.zeros(256, bool)
-_NO_CAR[[6, 12, 30]] = True
+_NO_CAR[list(ROAD_VALUES)] = True
 
 
 class FreewayEpisode(Config):
@@ -58,13 +61,26 @@ class FreewayEpisode(Config):
 
 
 @dataclass(frozen=True)
+class Chicken:
+    """The chicken as the planner simulates it: its height `y` (6 on the bottom sidewalk … 177) and its `timer`
+    (RAM byte 106: ≥ 128 waiting after a crossing, 1–127 knocked back or stunned, 0 free)."""
+
+    y: int
+    timer: int = 0
+
+    @property
+    def knocked(self) -> bool:
+        """Knocked back or stunned by a car (not waiting after a crossing, not free)."""
+        return 0 < self.timer < WAIT_END
+
+
+@dataclass(frozen=True)
 class FreewayStep:
-    """One agent step: the world's frame (lanes only, palette indices), the chicken's height and timer, the game's
-    reward (1 at each crossing) and whether the game has ended."""
+    """One agent step: the world's frame (lanes only, palette indices), the chicken after it, the game's reward (1
+    at each crossing) and whether the game has ended."""
 
     frame: np.ndarray
-    chicken_y: int
-    chicken_timer: int
+    chicken: Chicken
     reward: float
     done: bool
 
@@ -91,28 +107,17 @@ class FreewayGame:
         return self.shadow.getScreen()[LANE_ROWS, LANE_COLUMNS].copy()
 
     @property
-    def chicken_y(self) -> int:
-        return int(self.real.getRAM()[CHICKEN_Y_RAM])
-
-    @property
-    def chicken_timer(self) -> int:
-        return int(self.real.getRAM()[CHICKEN_TIMER_RAM])
+    def chicken(self) -> Chicken:
+        """The real chicken now, from the game's RAM."""
+        ram = self.real.getRAM()
+        return Chicken(int(ram[CHICKEN_Y_RAM]), int(ram[CHICKEN_TIMER_RAM]))
 
     def step(self, action: int) -> FreewayStep:
         """Play `action` (0 NOOP, 1 UP, 2 DOWN) for one agent step in the real game; the shadow plays NOOP."""
         if action not in (0, 1, 2):
-            raise ValueError(f"action={action} is invalid; valid range [0, 2] (NOOP, UP, DOWN)")
+            raise ValueError(f"action={action} is invalid; valid range [0, 2] ({', '.join(ACTIONS)})")
         reward = self._advance(action)
-        return FreewayStep(self.world_frame(), self.chicken_y, self.chicken_timer, reward, self.real.game_over())
-
-
-@dataclass(frozen=True)
-class Chicken:
-    """The chicken as the planner simulates it: its height `y` (6 on the bottom sidewalk … 177) and its `timer`
-    (RAM byte 106: ≥ 128 waiting after a crossing, 1–127 knocked back or stunned, 0 free)."""
-
-    y: int
-    timer: int = 0
+        return FreewayStep(self.world_frame(), self.chicken, reward, self.real.game_over())
 
 
 def chicken_step(chicken: Chicken, action: int, frame: np.ndarray) -> tuple[Chicken, float]:
@@ -121,12 +126,12 @@ def chicken_step(chicken: Chicken, action: int, frame: np.ndarray) -> tuple[Chic
     (1 for a crossing). Frame by frame, as the game: a free chicken moves 1 pixel a frame; a car's pixel in its
     hit box sets the timer to 91 and it slides back 1 pixel a frame while the timer is ≥ 80, then stands stunned
     until the timer passes 64; the timer counts down on every other frame; a crossing puts it on the sidewalk to
-    wait until its timer passes 128. The cars of `frame` stand for the step's four frames."""
+    wait until its timer reaches 128. The cars of `frame` stand for the step's four frames."""
     y, timer = chicken.y, chicken.timer
     for k in range(FRAMESKIP):
         tick = k % 2 == 1
-        if timer >= 128:
-            timer = 0 if timer - tick <= 128 else timer - tick
+        if timer >= WAIT_END:
+            timer = 0 if timer - tick <= WAIT_END else timer - tick
         elif timer > 0:
             y = max(y - 1, BOTTOM_Y) if timer >= SLIDE_END else y
             timer = 0 if timer - tick <= STUN_END else timer - tick

@@ -3,14 +3,13 @@
 The last open-source Foxglove Studio (`@foxglove/studio-base`, MPL-2.0) ships a prebuilt bundle of the app
 (`assets/`); React 17 and react-dom 17 are its externals. `install` fetches the three tarballs with `npm pack`,
 checks each against its pinned integrity (sha512, as the registry publishes it), keeps the app's files without
-their source maps (about 100 MB of the 167 MB) and the React builds, and moves the result into the cache in one
-rename, with a manifest of every file's size: a folder is either the whole app or absent.
+their inline source maps (71 MB of the bundle's 167 MB stay) and the React builds, and moves the result into the
+cache in one rename, with a manifest of every file's size: a folder is either the whole app or absent.
 """
 
 from __future__ import annotations
 
 import base64
-import fcntl
 import hashlib
 import json
 import os
@@ -19,11 +18,11 @@ import shutil
 import subprocess
 import tarfile
 import tempfile
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from dynplan.cli import InputError
+from dynplan.files import exclusive
 
 
 @dataclass(frozen=True)
@@ -85,7 +84,7 @@ def app_files(folder: Path) -> dict[str, Path]:
     return {name: folder / name for name in names}
 
 
-def install(cache: Path, say: Callable[[str], None] = print) -> Path:
+def install(cache: Path) -> Path:
     """Fetch, check and unpack the pinned app into `cache` (nothing to do where it is installed); returns its folder.
     An InputError names what is missing (npm) or wrong (a tarball whose digest is not the pinned one). Installs into
     one cache take turns (a lock file), and what an interrupted one left is removed by the next."""
@@ -95,20 +94,20 @@ def install(cache: Path, say: Callable[[str], None] = print) -> Path:
     if npm is None:
         raise InputError("npm not found: the viewer fetches Foxglove Studio from the npm registry with it "
                          "(Debian: apt-get install npm)")  # fmt: skip
-    cache.mkdir(parents=True, exist_ok=True)
-    with open(cache / ".install.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, or the process ends
+    with exclusive(cache / ".install.lock", waiting="waiting for another install of the viewer's app"):
         if (found := installed_app(cache)) is not None:  # another install finished while this one waited
             return found
         for stale in cache.glob(".install-*"):
             shutil.rmtree(stale, ignore_errors=True)
-        return _install(npm, cache, say)
+        return _install(npm, cache)
 
 
-def _install(npm: str, cache: Path, say: Callable[[str], None]) -> Path:
+def _install(npm: str, cache: Path) -> Path:
     with tempfile.TemporaryDirectory(prefix=".install-", dir=cache) as work:
         work = Path(work)
-        say(f"fetching Foxglove Studio {STUDIO_VERSION} and React 17 from the npm registry (37 MB, once) into {cache}")
+        print(
+            f"fetching Foxglove Studio {STUDIO_VERSION} and React 17 from the npm registry (37 MB, once) into {cache}"
+        )
         tarballs = _pack(npm, work)
         app = work / APP_FOLDER
         files: dict[str, int] = {}
@@ -119,7 +118,7 @@ def _install(npm: str, cache: Path, say: Callable[[str], None]) -> Path:
         target = cache / APP_FOLDER
         shutil.rmtree(target, ignore_errors=True)  # an incomplete earlier install
         os.replace(app, target)
-    say(f"installed {len(files)} files ({sum(files.values()) / 1e6:.0f} MB) in {target}")
+    print(f"installed {len(files)} files ({sum(files.values()) / 1e6:.0f} MB) in {target}")
     return target
 
 

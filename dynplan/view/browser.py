@@ -46,9 +46,9 @@ FLAGS = (
 START_TIMEOUT_S = 30.0
 
 
-def find_chromium(given: str | None = None) -> str:
-    """The Chromium executable: `given`, `$DYNPLAN_CHROMIUM`, or the first of CANDIDATES on PATH."""
-    name = given or os.environ.get("DYNPLAN_CHROMIUM")
+def find_chromium() -> str:
+    """The Chromium executable: `$DYNPLAN_CHROMIUM`, or the first of CANDIDATES on PATH."""
+    name = os.environ.get("DYNPLAN_CHROMIUM")
     found = shutil.which(name) if name else next(filter(None, map(shutil.which, CANDIDATES)), None)
     if found is None:
         wanted = f"{name!r}" if name else "Chromium (" + ", ".join(CANDIDATES) + ")"

@@ -21,7 +21,7 @@ import numpy as np
 from mcap.reader import make_reader
 from PIL import Image
 
-from dynplan.files import atomic_path
+from dynplan.files import write_bytes_atomic
 from dynplan.logs.format import EPOCH_NS, layout_topics
 from dynplan.view.browser import Browser
 from dynplan.view.server import ViewServer, routes
@@ -128,8 +128,7 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
                         and not u.startswith(server.origin + "/"))  # fmt: skip
         errors = tuple(browser.errors)
         log_requests = sum(u == server.origin + log_url for u in browser.requests)
-    with atomic_path(out) as tmp:
-        Path(tmp).write_bytes(png)
+    write_bytes_atomic(out, png)
     pixels = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
     panels = tuple(Panel(p["id"], tuple(p["box"]), p["canvas"] and tuple(p["canvas"]), _drawn(p, pixels))
                    for p in state["panels"])  # fmt: skip
