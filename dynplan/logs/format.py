@@ -149,14 +149,29 @@ REPLAY_LAYOUT = Path(__file__).parent / "layouts" / "replay.json"
 STUDIO_LAYOUT = Path(__file__).parent / "layouts" / "replay-studio-1.48.json"
 
 
+def _image_panel(config: dict) -> tuple[str, list[str]] | None:
+    """An image panel's image topic and annotation topics, in either dialect (`Image`'s `imageMode`, Studio 1.48's
+    `ImageViewPanel`); None for another panel."""
+    if "imageTopic" in config.get("imageMode", {}):
+        return config["imageMode"]["imageTopic"], list(config["imageMode"].get("annotations", {}))
+    if "cameraTopic" in config:
+        return config["cameraTopic"], list(config.get("enabledMarkerTopics", []))
+    return None
+
+
+def image_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> dict[str, str]:
+    """Each image panel of a Foxglove layout (by panel id) and the image topic it draws."""
+    configs = json.loads(Path(layout).read_text())["configById"]
+    return {key: image[0] for key, config in configs.items() if (image := _image_panel(config))}
+
+
 def panel_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> dict[str, set[str]]:
     """The topics each panel of a Foxglove layout reads (by panel id): image and annotation topics of image panels
     (either dialect), the topics of plots' and raw messages' paths."""
     panels = {}
     for key, config in json.loads(Path(layout).read_text())["configById"].items():
-        image = config.get("imageMode", {})
-        topics = {image["imageTopic"], *image.get("annotations", {})} if "imageTopic" in image else set()
-        topics |= {config["cameraTopic"], *config.get("enabledMarkerTopics", [])} if "cameraTopic" in config else set()
+        image = _image_panel(config)
+        topics = {image[0], *image[1]} if image else set()
         paths = [p["value"] for p in config.get("paths", [])] + ([config["topicPath"]] if "topicPath" in config else [])
         panels[key] = topics | {path.split(".")[0] for path in paths}
     return panels

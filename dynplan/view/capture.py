@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import io
 import itertools
-import json
 import time
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
@@ -22,7 +21,7 @@ from mcap.reader import make_reader
 from PIL import Image
 
 from dynplan.files import write_bytes_atomic
-from dynplan.logs.format import EPOCH_NS, layout_topics
+from dynplan.logs.format import EPOCH_NS, image_topics, layout_topics
 from dynplan.view.browser import Browser
 from dynplan.view.server import ViewServer, routes
 
@@ -114,7 +113,7 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
         firsts = first_times(log)
         at_s = settings.at_s if settings.at_s is not None else max(firsts.get(t, 0.0) for t in layout_topics(layout))
         browser.open(server.origin + view_query(server.origin, log_url, at_s))
-        due = {key for key, topic in _image_topics(layout).items() if firsts.get(topic, np.inf) <= at_s}
+        due = {key for key, topic in image_topics(layout).items() if firsts.get(topic, np.inf) <= at_s}
         state, complete = _wait(browser, due, settings.timeout_s)
         if state["problem_count"]:
             browser.evaluate(SHOW_PROBLEMS_JS)
@@ -133,14 +132,6 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
     panels = tuple(Panel(p["id"], tuple(p["box"]), p["canvas"] and tuple(p["canvas"]), _drawn(p, pixels))
                    for p in state["panels"])  # fmt: skip
     return ViewReport(_topics(state["lines"]), problems, panels, outside, log_requests, errors, seconds, complete)
-
-
-def _image_topics(layout: Path) -> dict[str, str]:
-    """Each image panel of a layout (either dialect) and the topic it draws."""
-    configs = json.loads(Path(layout).read_text())["configById"]
-    topics = {key: config.get("cameraTopic") or config.get("imageMode", {}).get("imageTopic")
-              for key, config in configs.items()}  # fmt: skip
-    return {key: topic for key, topic in topics.items() if topic}
 
 
 def first_times(log: Path) -> dict[str, float]:
