@@ -4,6 +4,8 @@ Logs are inspected one Prefect task each and copied with dask; logs already in t
 skipped, so rerunning after new logs arrive appends only those, after checking the episodes already in (and
 repairing any damaged one from its log). Damaged logs are reported and skipped.
 
+A store holds the episodes of one world (`--world`, default road); a log of another world is refused.
+
 `python -m flows.build_datasets --verify STORE.zarr [LOG_DIR]` re-reads every chunk of the store, names each
 damaged one with its episodes and, given the logs, repairs them; exit status 1 if damage remains.
 """
@@ -13,9 +15,10 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
-from prefect import flow, task
+from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
@@ -23,6 +26,7 @@ from dynplan.cli import CommandParser, add_debug_option
 from dynplan.data.build import build_frame_store
 from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem
 from dynplan.data.verify import verify_store
+from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.cli import run
@@ -30,16 +34,19 @@ from flows.runners import add_dask_option, checked_dask_address, dask_scheduler,
 
 
 @task(name="inspect-log", cache_policy=NO_CACHE)
-def inspect_log_task(path: str) -> LogInfo:
-    return inspect_for_store(path)
+def inspect_log_task(path: str, world_name: str = DEFAULT_WORLD) -> LogInfo:
+    info = inspect_for_store(path)
+    if not info.error and info.world != world_name:
+        return replace(info, error=f"{path}: a log of the {info.world} world; this build is --world {world_name}'s")
+    return info
 
 
 @flow(name="build-datasets", log_prints=True)
 def build_datasets(log_dir: str = "datasets/logs", out: str = "datasets/frames.zarr",
-                   dask_address: str | None = None) -> dict:  # fmt: skip
-    """Append every new log in `log_dir` to the frames store `out`."""
+                   dask_address: str | None = None, world_name: str = DEFAULT_WORLD) -> dict:  # fmt: skip
+    """Append every new log of the world `world_name` in `log_dir` to the frames store `out`."""
     logs = [str(p) for p in list_logs(log_dir)]
-    futures = inspect_log_task.map(logs)
+    futures = inspect_log_task.map(logs, world_name=unmapped(world_name))
     infos = [f.result() for f in progress(as_completed(futures), total=len(futures), description="inspect logs")]
     with dask_scheduler(dask_address):
         report = build_frame_store(out, infos)
@@ -79,6 +86,8 @@ def main(argv: list[str] | None = None) -> dict:
                         help="Zarr store to create or extend")  # fmt: skip
     parser.add_argument("--verify", metavar="STORE", type=PathArgument(PathKind.STORE),
                         help="check every chunk of STORE (and repair it from LOG_DIR)")  # fmt: skip
+    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
+                        help=f"the world whose logs the store holds (default {DEFAULT_WORLD})")  # fmt: skip
     add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     add_debug_option(parser)
@@ -106,7 +115,7 @@ def main(argv: list[str] | None = None) -> dict:
     for name in not_logs:
         print(f"python -m flows.build_datasets: skipped {Path(args.log_dir) / name}: not a file", file=sys.stderr)
     report = build_datasets.with_options(task_runner=task_runner(address))(
-        log_dir=args.log_dir, out=args.out, dask_address=address
+        log_dir=args.log_dir, out=args.out, dask_address=address, world_name=args.world
     )
     if args.json:
         print(json.dumps(report))

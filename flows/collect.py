@@ -1,7 +1,7 @@
 """`python -m flows.collect`: record episodes as MCAP logs, one Prefect task per episode, resumably.
 
-Episode i uses seed S + i. Rerunning skips complete logs and rewrites damaged ones, so an interrupted
-collection is finished by running the same command again.
+Episode i uses seed S + i (`--world freeway`: the seed is the game mode, 0–7). Rerunning skips complete logs and
+rewrites damaged ones, so an interrupted collection is finished by running the same command again.
 """
 
 from __future__ import annotations
@@ -15,8 +15,9 @@ from prefect.futures import as_completed
 
 from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import field_help
-from dynplan.data.collect import DEFAULT_RECORDING, CollectPlan, record_episode, stale_temporaries
+from dynplan.data.collect import CollectPlan, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
+from dynplan.env.worlds import DEFAULT_WORLD, ROAD, WORLDS, world
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.cli import run
@@ -24,20 +25,24 @@ from flows.runners import add_dask_option, checked_dask_address, task_runner
 
 
 @task(name="record-episode", cache_policy=NO_CACHE)
-def record_episode_task(out: str, seed: int, config: dict, n_frames: int | None = None) -> dict:
-    return record_episode(out, seed, config, n_frames).to_dict()
+def record_episode_task(out: str, seed: int, config: dict, n_frames: int | None = None,
+                        world_name: str = DEFAULT_WORLD) -> dict:  # fmt: skip
+    return record_episode(out, seed, config, n_frames, world_name).to_dict()
 
 
 @flow(name="collect-episodes", log_prints=True)
-def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int = 0,
-                     config: dict | None = None, n_frames: int | None = None) -> dict:  # fmt: skip
-    """Record episodes seed … seed+episodes−1 of the road world under `config` into `out`."""
-    plan = CollectPlan(episodes=episodes, seed=seed)
-    world = RoadConfig.from_dict(config or DEFAULT_RECORDING.model_dump())
+def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int = 0, config: dict | None = None,
+                     n_frames: int | None = None, world_name: str = DEFAULT_WORLD) -> dict:  # fmt: skip
+    """Record episodes seed … seed+episodes−1 of the world `world_name` under `config` into `out`."""
+    plan, entry = CollectPlan(episodes=episodes, seed=seed), world(world_name)
+    recording = entry.config(config) if config else entry.recording
+    for seed_ in (plan.seeds[0], plan.seeds[-1]):
+        entry.check_seed(seed_)
     for leftover in stale_temporaries(out):
         leftover.unlink(missing_ok=True)
     seeds = plan.seeds
-    futures = record_episode_task.map(out, seeds, config=unmapped(world.model_dump()), n_frames=unmapped(n_frames))
+    futures = record_episode_task.map(out, seeds, config=unmapped(recording.model_dump()), n_frames=unmapped(n_frames),
+                                      world_name=unmapped(entry.name))  # fmt: skip
     results = [f.result() for f in progress(as_completed(futures), total=len(futures), description="collect")]
     counts = Counter(r["status"] for r in results)
     print(f"{out}: {counts['written']} written, {counts['rewritten']} rewritten, {counts['skipped']} already complete")
@@ -46,37 +51,52 @@ def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int =
 
 def main(argv: list[str] | None = None) -> dict:
     parser = CommandParser(prog="python -m flows.collect", description=__doc__)
+    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
+                        help=f"the world to record (default {DEFAULT_WORLD})")  # fmt: skip
     parser.add_argument("--episodes", type=bounded(CollectPlan, "episodes"), default=10,
                         help=field_help(CollectPlan, "episodes"))  # fmt: skip
     parser.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=0, help=field_help(CollectPlan, "seed"))
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/logs",
                         help="folder for the logs (default datasets/logs)")  # fmt: skip
-    parser.add_argument("--level", type=bounded(RoadConfig, "level"), default=DEFAULT_RECORDING.level,
-                        help=field_help(RoadConfig, "level"))  # fmt: skip
+    parser.add_argument("--level", type=bounded(RoadConfig, "level"), default=None,
+                        help=field_help(RoadConfig, "level", str(ROAD.recording.level)) + "; the road's")  # fmt: skip
     parser.add_argument(
         "--agent-speed",
         type=bounded(RoadConfig, "agent_speed"),
-        default=DEFAULT_RECORDING.agent_speed,
-        help="sets the episode length T (default 0.5: 407 frames, enough for both paper agents)",
+        default=None,
+        help="sets the road's episode length T (default 0.5: 407 frames, enough for both paper agents)",
     )
     add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_debug_option(parser)
     args = parser.parse_args(argv)
     try:
-        world = RoadConfig(level=args.level, agent_speed=args.agent_speed)
-        CollectPlan(episodes=args.episodes, seed=args.seed)
+        config = _recording(args)
+        plan = CollectPlan(episodes=args.episodes, seed=args.seed)
+        world(args.world).check_seed(plan.seeds[-1], "--seed + --episodes − 1")
         check_output(args.out, "--out", "folder")
         address = checked_dask_address(args.dask_address)
     except ValueError as error:
         parser.error(str(error))
     runner = task_runner(address)
     summary = collect_episodes.with_options(task_runner=runner)(
-        out=args.out, episodes=args.episodes, seed=args.seed, config=world.model_dump()
+        out=args.out, episodes=args.episodes, seed=args.seed, config=config, world_name=args.world
     )
     if args.json:
         print(json.dumps(summary))
     return summary
+
+
+def _recording(args) -> dict:
+    """The recording's config from the command line: the road's level and agent speed; other worlds take none."""
+    road = {"level": args.level, "agent_speed": args.agent_speed}
+    if args.world != ROAD.name:
+        given = [f"--{name.replace('_', '-')}" for name, value in road.items() if value is not None]
+        if given:
+            raise ValueError(f"{' and '.join(given)}: the road world's, not --world {args.world}'s")
+        return world(args.world).recording.model_dump()
+    chosen = {k: v for k, v in road.items() if v is not None}
+    return RoadConfig.from_dict(ROAD.recording.model_dump(), **chosen).model_dump()
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ def test_the_shadow_is_the_real_game_without_its_chicken():
         real, shadow = game.real.getScreen(), game.shadow.getScreen()
         differing += bool((real != shadow)[_outside_the_chickens_and_score(step.chicken.y)].any())
         crossings += step.reward
-        np.testing.assert_array_equal(step.frame, shadow[freeway.LANE_ROWS, freeway.LANE_COLUMNS])
+        np.testing.assert_array_equal(step.frame, shadow[freeway.LANE_ROWS, freeway.LANE_COLUMNS][::-1])
     assert differing == 0
     assert crossings >= 1  # among the steps compared, the chicken's crossings and the waits after them
 
@@ -133,7 +133,7 @@ def test_the_rule_on_an_empty_road():
     stunned = chicken_step(Chicken(50, 70), 1, road)[0]
     assert stunned == Chicken(50, 68)  # stunned: the action is ignored
     car = road.copy()
-    car[freeway.HIT_ROWS[0] - 60 - freeway.LANE_ROWS.start, freeway.HIT_COLUMNS] = 136
+    car[60 + freeway.HIT_OFFSET + 3, freeway.HIT_COLUMNS] = 136  # the top row of the box at height 60 (screen 195 − 60)
     hit = chicken_step(Chicken(58), 1, car)[0]
     assert hit.timer == freeway.HIT_TIMER - 1 and hit.y < 60  # hit on the way up: sliding back
 
@@ -151,7 +151,7 @@ def test_the_oracle_waits_for_a_car_and_then_crosses():
     from dynplan.analysis.freeway_oracle import best_action
 
     frames = np.full((40, 154, 152), 6, np.uint8)
-    frames[1:4, 100:108, 30:50] = 136  # a car just above a chicken at height 60 for three steps
+    frames[1:4, 46:54, 30:50] = 136  # a car just above a chicken at height 60 for three steps
     chicken, actions = Chicken(60), []
     for t in range(8):
         actions.append(best_action(chicken, frames, t, 6))

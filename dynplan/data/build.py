@@ -17,7 +17,6 @@ import zarr
 
 from dynplan.data.chunks import COMPRESSORS, commit_rows, staged, write_rows
 from dynplan.data.store import (
-    ARRAYS,
     BATCH_EPISODES,
     STORE_FORMAT,
     STORE_VERSION,
@@ -29,11 +28,13 @@ from dynplan.data.store import (
     inspect_for_store,
     load_frames,
     lock_path,
+    store_arrays,
     store_problem,
+    store_world,
 )
 from dynplan.data.verify import verify_store
+from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.files import exclusive
-from dynplan.logs.format import pixel_values
 from dynplan.version import __version__
 
 
@@ -54,19 +55,23 @@ class BuildReport:
 
 
 def _geometry(info: LogInfo) -> dict:
-    return {"config": info.config, "n_frames": info.n_frames, "height": info.height, "width": info.width}
+    return {"world": info.world, "config": info.config, "n_frames": info.n_frames, "height": info.height,
+            "width": info.width}  # fmt: skip
 
 
 def _create(group: zarr.Group, first: LogInfo) -> None:
     T, H, W = first.n_frames, first.height, first.width
+    entry = world(first.world)
+    geometry = {k: v for k, v in _geometry(first).items() if k != "world" or v != DEFAULT_WORLD}
     group.attrs.update(
         episodes=0,
-        format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **_geometry(first),
-        pixel_values=pixel_values(W), y_axis=Y_AXIS,
+        format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **geometry,
+        pixel_values=entry.pixel_values(entry.config(first.config)), y_axis=Y_AXIS,
     )  # fmt: skip
     # overwrite=True: a first build killed half-way through creating these is simply started again.
-    for name, spec in array_specs(T, H, W).items():
-        group.create_array(name, compressors=COMPRESSORS, overwrite=True, **spec)
+    specs = array_specs(T, H, W)
+    for name in store_arrays(entry.name):
+        group.create_array(name, compressors=COMPRESSORS, overwrite=True, **specs[name])
 
 
 def build_frame_store(store: str | os.PathLike, infos: Sequence[LogInfo]) -> BuildReport:
@@ -120,7 +125,8 @@ def _acceptable(group: zarr.Group, pending: Sequence[LogInfo], report: BuildRepo
     """The new logs that fit the store (recorded worlds of its geometry, of seeds not in it); the others are
     entered in `report.failed` with the reason."""
     n = committed(group)
-    expected = {k: group.attrs[k] for k in ("config", "n_frames", "height", "width")}
+    expected = {"world": store_world(group.attrs), **{k: group.attrs[k] for k in ("config", "n_frames", "height",
+                                                                                   "width")}}  # fmt: skip
     seeds = {int(seed): str(name) for seed, name in zip(group["seed"][:n], group["log_name"][:n], strict=True)}
     accepted = []
     for info in pending:
@@ -141,8 +147,8 @@ def _acceptable(group: zarr.Group, pending: Sequence[LogInfo], report: BuildRepo
 def _append(group: zarr.Group, accepted: Sequence[LogInfo], report: BuildReport) -> None:
     """Append `accepted` in batches of `BATCH_EPISODES`, each committed by the group attribute `episodes`, after
     rolling back an interrupted append."""
-    n = committed(group)
-    for name in ARRAYS:  # roll back an interrupted append
+    n, names = committed(group), store_arrays(store_world(group.attrs))
+    for name in names:  # roll back an interrupted append
         commit_rows(group[name], n)
     T, H, W = group.attrs["n_frames"], group.attrs["height"], group.attrs["width"]
     for start in range(0, len(accepted), BATCH_EPISODES):
@@ -150,11 +156,12 @@ def _append(group: zarr.Group, accepted: Sequence[LogInfo], report: BuildReport)
         k = len(batch)
         frames = da.stack([da.from_delayed(dask.delayed(load_frames)(i.path), (T, H, W), np.uint8) for i in batch])
         da.store(frames, staged(group["frames"], n + k), regions=(slice(n, n + k),), lock=False)
-        write_rows(group["goal"], n, np.stack([i.goal for i in batch]))
+        if "goal" in names:
+            write_rows(group["goal"], n, np.stack([i.goal for i in batch]))
         write_rows(group["seed"], n, np.array([i.seed for i in batch], dtype=np.int64))
         write_rows(group["log_name"], n, np.array([i.name for i in batch]))
         write_rows(group["log_sha256"], n, np.array([i.sha256 for i in batch]))
-        for name in ARRAYS:  # every row up to n + k is written: show it
+        for name in names:  # every row up to n + k is written: show it
             commit_rows(group[name], n + k)
         n += k
         group.attrs["episodes"] = n  # the commit: everything up to n is complete

@@ -16,17 +16,12 @@ from pathlib import Path
 from pydantic import Field
 
 from dynplan.config import Config
-from dynplan.env.config import RoadConfig
-from dynplan.env.road import World, generate_world
+from dynplan.env.worlds import DEFAULT_WORLD, Recording, world, world_of
 from dynplan.files import stale_temporaries as stale_files
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.logs.recording import fresh_recording, recording_problem
 from dynplan.logs.writer import write_episode_log
-
-#: Defaults of a recording: the paper's level and the longest episode (the 1× agent's 407 frames), so that one
-#: log serves both agent speeds.
-DEFAULT_RECORDING = RoadConfig(level=6, agent_speed=0.5)
 
 
 class CollectPlan(Config):
@@ -57,38 +52,41 @@ def log_path(out_dir: str | os.PathLike, seed: int) -> Path:
     return Path(out_dir) / f"episode_{seed:010d}.mcap"
 
 
-def record_episode(out_dir: str | os.PathLike, seed: int, config: RoadConfig | dict = DEFAULT_RECORDING,
-                   n_frames: int | None = None) -> RecordResult:  # fmt: skip
-    """Make sure `out_dir` holds the log of the episode `seed` under `config` (`n_frames` frames): a log already
-    there is kept ("skipped") only if it is what the seed records, and rewritten otherwise."""
-    config = config if isinstance(config, RoadConfig) else RoadConfig.from_dict(config)
+def record_episode(out_dir: str | os.PathLike, seed: int, config: Config | dict | None = None,
+                   n_frames: int | None = None, world_name: str = DEFAULT_WORLD) -> RecordResult:  # fmt: skip
+    """Make sure `out_dir` holds the log of the episode `seed` of a world under `config` (`n_frames` frames; a
+    config of the world `world_name` given as a dict, or its recording default): a log already there is kept
+    ("skipped") only if it is what the seed records, and rewritten otherwise."""
+    entry = world_of(config) if isinstance(config, Config) else world(world_name)
+    config = config if isinstance(config, Config) else entry.config(config) if config else entry.recording
     n_frames = config.max_steps if n_frames is None else n_frames
-    path = log_path(out_dir, seed)
-    world = generate_world(config, seed, n_frames)
+    path = log_path(out_dir, entry.check_seed(seed))
+    episode = entry.record(config, seed, n_frames)
     if not path.exists():
-        write_episode_log(path, world, n_frames=n_frames)
+        write_episode_log(path, episode, n_frames=n_frames)
         return RecordResult(seed, str(path), "written")
-    fresh = fresh_recording(world, n_frames, path.name)
-    if _is_recording(path, fresh, world, n_frames):
+    fresh = fresh_recording(episode, n_frames, path.name)
+    if _is_recording(path, fresh, episode, n_frames):
         return RecordResult(seed, str(path), "skipped")
     write_bytes_atomic(path, fresh)
     return RecordResult(seed, str(path), "rewritten")
 
 
-def _is_recording(path: Path, fresh: bytes, world: World, n_frames: int) -> bool:
+def _is_recording(path: Path, fresh: bytes, world: Recording, n_frames: int) -> bool:
     """Whether the log at `path` is the recording `fresh` of `world` (`dynplan.logs.recording`). A valid log of
     another world is an error: it is not this run's to replace."""
     try:
         log = read_episode_log(path)
     except LogError:
         return False
-    config, seed = world.config, world.seed
+    config, seed, name = world.config, world.seed, world_of(world.config).name
     recorded = json.loads(log.metadata["config"])
-    if recorded != config.model_dump() or log.n_frames != n_frames or log.seed != seed:
+    if (log.entry.name, recorded, log.n_frames, log.seed) != (name, config.model_dump(), n_frames, seed):
         raise LogError(
             path,
-            f"already holds seed {log.seed} recorded with {recorded} over {log.n_frames} frames; "
-            f"this run asks for seed {seed}, {config.model_dump()} over {n_frames} — use another output folder",
+            f"already holds seed {log.seed} recorded with {recorded} over {log.n_frames} frames in the "
+            f"{log.entry.name} world; this run asks for seed {seed}, {config.model_dump()} over {n_frames} in the "
+            f"{name} world — use another output folder",
         )
     return recording_problem(path, log, world, fresh) is None
 

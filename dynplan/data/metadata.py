@@ -17,6 +17,7 @@ from pathlib import Path
 
 from zarr.core.metadata.v3 import ArrayV3Metadata
 
+from dynplan.config import ConfigError
 from dynplan.data.store import (
     ARRAYS,
     STORE_FORMAT,
@@ -25,9 +26,10 @@ from dynplan.data.store import (
     format_metadata,
     metadata_bytes,
     spec_metadata,
+    store_arrays,
+    store_world,
 )
-from dynplan.env.config import RoadConfig
-from dynplan.logs.format import pixel_values
+from dynplan.env.worlds import world
 
 #: How to start again when the store itself cannot be repaired.
 REBUILD = "rebuild the store from its logs: python -m flows.build_datasets LOG_DIR --out NEW.zarr"
@@ -49,6 +51,7 @@ class StoreMetadata:
     attributes: dict[str, dict] = field(default_factory=dict)  # each such array's attributes
     damaged: set[str] = field(default_factory=set)  # arrays whose metadata is damaged
     consolidated: dict | None = None  # the group's consolidated copies of its arrays' metadata
+    arrays: tuple[str, ...] = ARRAYS  # the arrays of episodes its world's store holds
 
     def problem(self, array: str, kind: str, problem: str, **fields) -> None:
         file = f"{array}/zarr.json" if array else "zarr.json"
@@ -95,7 +98,7 @@ def check_metadata(store: str) -> StoreMetadata:
     _check_attributes(meta, attributes)
     _read_consolidated(meta, data.get("consolidated_metadata"))
     codes = sorted(p.name for p in Path(store).glob("codes_*") if p.is_dir())
-    for name in [*ARRAYS, *codes]:
+    for name in [*meta.arrays, *codes]:
         if Path(store, name, "zarr.json").is_file():
             _check_array(store, name, meta, attributes.get("format_version"))
     if meta.consolidated is not None:
@@ -133,8 +136,14 @@ def _check_attributes(meta: StoreMetadata, attributes: dict) -> None:
         meta.problem("", "group attributes", f"attribute 'dynplan_version' is {attributes.get('dynplan_version')!r}, "
                      "not a version string", fix={"dynplan_version": "unknown"})  # fmt: skip
     try:
-        config = RoadConfig.from_dict(attributes.get("config"))
-    except (ValueError, TypeError) as error:
+        entry = world(str(store_world(attributes)))
+    except ConfigError as error:
+        meta.problem("", "group attributes", f"attribute 'world': {error}", unrepaired_because=REBUILD)
+        return
+    meta.arrays = store_arrays(entry.name)
+    try:
+        config = entry.config(attributes.get("config"))
+    except (ValueError, TypeError, ConfigError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
         meta.problem("", "group attributes", f"attribute 'config' is not a world config ({reason})",
                      unrepaired_because=REBUILD)  # fmt: skip
@@ -151,7 +160,7 @@ def _check_attributes(meta: StoreMetadata, attributes: dict) -> None:
                      "integer ≥ 1", unrepaired_because=REBUILD)  # fmt: skip
         return
     meta.geometry = geometry
-    fix = {"pixel_values": pixel_values(config.width), "y_axis": Y_AXIS}
+    fix = {"pixel_values": entry.pixel_values(config), "y_axis": Y_AXIS}
     wrong = {k: v for k, v in fix.items() if attributes.get(k) != v}
     if wrong:
         found = ", ".join(f"{k} {attributes.get(k)!r}" for k in wrong)
@@ -177,7 +186,7 @@ def _check_array(store: str, name: str, meta: StoreMetadata, version: str | None
                 meta.problem("", "consolidated metadata", copy, fix={})
     if problem:
         meta.damaged.add(name)
-        reason = REBUILD if not meta.geometry else NEEDS_LOGS if name in ARRAYS else REENCODE
+        reason = REBUILD if not meta.geometry else NEEDS_LOGS if name in meta.arrays else REENCODE
         meta.problem(name, "array metadata", problem, unrepaired_because=reason)
 
 
@@ -265,8 +274,8 @@ def _check_lengths(meta: StoreMetadata) -> None:
     """The committed count against the arrays' lengths: an attribute that claims more episodes than every array
     holds is damage to the attribute."""
     n = meta.episodes or 0
-    lengths = {name: meta.shapes[name][0] for name in ARRAYS if meta.shapes.get(name)}
-    if n and len(lengths) == len(ARRAYS) and all(length < n for length in lengths.values()):
+    lengths = {name: meta.shapes[name][0] for name in meta.arrays if meta.shapes.get(name)}
+    if n and len(lengths) == len(meta.arrays) and all(length < n for length in lengths.values()):
         held = ", ".join(f"{name} {length}" for name, length in lengths.items())
         meta.problem("", "group attributes", f"attribute 'episodes' is {n}, but every array holds fewer ({held})",
                      unrepaired_because=REBUILD)  # fmt: skip

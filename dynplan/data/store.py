@@ -5,12 +5,13 @@ Layout (readable with `zarr`, `dask.array.from_zarr` or `xarray.open_zarr`, no d
 | array      | shape                        | dtype   | chunks         | dimension_names              |
 | ---------- | ---------------------------- | ------- | -------------- | ---------------------------- |
 | frames     | (episode, time, y, x)        | uint8   | one episode    | episode, time, y, x          |
-| goal       | (episode, time, 2)           | float64 | 64 episodes    | episode, time, yx            |
+| goal       | (episode, time, 2)           | float64 | 64 episodes    | episode, time, yx (a world with a goal) |
 | seed       | (episode,)                   | int64   | 1024           | episode                      |
 | log_name   | (episode,)                   | string  | 1024           | episode                      |
 | log_sha256 | (episode,)                   | string  | 1024           | episode                      |
 
-Group attributes hold the format, the world config, n_frames, height, width and the pixel-value legend.
+Group attributes hold the format, the world (`world`, absent for the road, the first world) and its config,
+n_frames, height, width and the pixel-value legend.
 Row 0 of `y` is the bottom of the world. Every chunk carries a CRC-32C (`dynplan.data.chunks`).
 
 Appending is incremental: logs whose SHA-256 is already in `log_sha256` are skipped (and their episodes checked,
@@ -36,6 +37,7 @@ from zarr.core.buffer import default_buffer_prototype
 from zarr.storage import MemoryStore
 
 from dynplan.data.chunks import COMPRESSORS, read
+from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.logs.reader import LogError, read_episode_log
 
 STORE_FORMAT = "dynplan.frames"
@@ -44,13 +46,24 @@ STORE_VERSION = "2"
 #: Episodes per chunk of `goal`, and appended per dask computation (bounds memory: 64 × 407 × 48 × 48 B ≈ 60 MB).
 BATCH_EPISODES = 64
 
+#: Every array of episodes a store may hold; a world without a goal has no `goal` (`store_arrays`).
 ARRAYS = ("frames", "goal", "seed", "log_name", "log_sha256")
 #: The group attribute `y_axis`.
 Y_AXIS = "row 0 is the bottom of the world"
 
 
+def store_arrays(world_name: str = DEFAULT_WORLD) -> tuple[str, ...]:
+    """The arrays of episodes a store of the world `world_name` holds."""
+    return ARRAYS if world(world_name).has_goal else tuple(name for name in ARRAYS if name != "goal")
+
+
+def store_world(attributes: dict) -> str:
+    """The world a store's group attributes name (the road where they name none)."""
+    return attributes.get("world", DEFAULT_WORLD)
+
+
 def array_specs(n_frames: int, height: int, width: int) -> dict[str, dict]:
-    """The format of each array of a store of episodes of `n_frames` frames of height × width, with no rows:
+    """The format of each array a store of episodes of `n_frames` frames of height × width may hold, with no rows:
     `zarr.create_array` arguments besides the codecs (`COMPRESSORS`)."""
     T, H, W = n_frames, height, width
     strings = {"shape": (0,), "chunks": (1024,), "dtype": str, "dimension_names": ("episode",)}
@@ -103,6 +116,7 @@ class LogInfo:
     goal: np.ndarray | None = None
     kind: str = "world"
     error: str | None = None
+    world: str = DEFAULT_WORLD
 
     @property
     def name(self) -> str:
@@ -130,7 +144,8 @@ def inspect_for_store(path: str | os.PathLike) -> LogInfo:
         return LogInfo(path, sha, error=str(error))
     H, W = log.frames.shape[1:]
     config = json.loads(log.metadata["config"])
-    return LogInfo(path, sha, log.seed, log.n_frames, H, W, config, log.goal, log.metadata.get("kind", "world"))
+    return LogInfo(path, sha, log.seed, log.n_frames, H, W, config, log.goal, log.metadata.get("kind", "world"),
+                   world=log.entry.name)  # fmt: skip
 
 
 def load_frames(path: str) -> np.ndarray:
@@ -192,7 +207,9 @@ def committed_checksums(store: str | os.PathLike) -> list[str]:
 
 
 def fingerprint(store: str | os.PathLike) -> str:
-    """A key for the store's contents: its config, frame count and the checksums of its logs, in order."""
+    """A key for the store's contents: its world and config, frame count and the checksums of its logs, in order."""
     group = zarr.open_group(str(store), mode="r", use_consolidated=False)
     parts = [group.attrs.get("config"), group.attrs.get("n_frames"), committed_checksums(store)]
+    if "world" in group.attrs:  # the road's stores never named their world
+        parts.append(group.attrs["world"])
     return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()

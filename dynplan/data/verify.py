@@ -31,7 +31,6 @@ import zarr
 from dynplan.data.chunks import Chunk, chunk_file, chunk_problem, chunks, is_checksummed
 from dynplan.data.metadata import REBUILD, REENCODE, StoreMetadata, check_metadata
 from dynplan.data.store import (
-    ARRAYS,
     LogInfo,
     episodes_digest,
     format_metadata,
@@ -140,7 +139,7 @@ def _short_arrays(meta: StoreMetadata, n: int) -> list[Damage]:
     if any("'episodes' is" in p["problem"] for p in meta.problems):
         return []
     damage = []
-    for name in ARRAYS:
+    for name in meta.arrays:
         if name in meta.damaged:
             continue
         if name not in meta.shapes:

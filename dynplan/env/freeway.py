@@ -7,18 +7,25 @@ bottom sidewalk and the score digits, the shadow's screen equals the real one at
 world model learns and imagines — and the real chicken is the agent, read from RAM. An episode is determined by its
 `FreewayEpisode` (the game mode and the NOOP steps played before it starts): its world frames are the same bytes
 every time (palette indices of the emulator's screen, no colour conversion), and a later NOOP start is the same
-traffic one step further on.
+traffic one step further on. So the world of a mode is one recording, `record_mode`: the shadow's lanes from the
+game's start to its end, in which an episode with NOOP start n starts at frame n.
+
+A world frame is (154, 152) uint8 with row 0 the bottom lane's last row (the screen's rows 27–180 flipped, as every
+dynplan world frame: row 0 is the bottom), columns the screen's 8–159.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from pydantic import Field
 
 from dynplan.config import Config
 from dynplan.extras import require
+
+#: The game modes (the traffic); an episode of the world is a mode.
+MODES = range(8)
 
 #: Emulator frames per agent step (Gymnasium's `ALE/Freeway-v5` default).
 FRAMESKIP = 4
@@ -38,8 +45,14 @@ CHICKEN_COLUMNS = slice(44, 51)
 IDLE_CHICKEN_ROWS = slice(187, 195)
 SCORE_BOX = (slice(5, 13), slice(41, 55))
 ACTIONS = ("NOOP", "UP", "DOWN")
-#: The lane frame's values that are no car: the road and the lane marks.
+#: The lane frame's values that are no car: the road, the lane marks and the median.
 ROAD_VALUES = (6, 12, 30)
+#: Every value of a lane frame, by name (the same in every mode): the road's, the cars' tyres and each lane's car
+#: colour, lanes counted from the bottom.
+PIXEL_VALUES = {"road": 6, "lane_mark": 12, "median": 30, "tyres": 0,
+                **{f"car_lane_{i + 1}": v for i, v in enumerate((26, 216, 68, 136, 36, 130, 74, 18, 220, 66))}}
+#: The chicken's column in a lane frame (the middle of its columns).
+CHICKEN_COLUMN = 39.0
 #: The chicken's rule (`chicken_step`), measured against the emulator: heights from the bottom sidewalk to the
 #: crossing, the screen rows (195 − y … 198 − y) and the lane frame's columns where a car's pixel hits it (the
 #: chicken's columns but the first), the timer a hit sets, the timer below which a knocked chicken stops sliding
@@ -47,6 +60,8 @@ ROAD_VALUES = (6, 12, 30)
 BOTTOM_Y, TOP_Y = 6, 177
 HIT_ROWS = (195, 199)
 HIT_COLUMNS = slice(CHICKEN_COLUMNS.start + 1 - LANE_COLUMNS.start, CHICKEN_COLUMNS.stop - LANE_COLUMNS.start)
+#: The hit box's lowest world-frame row is y + HIT_OFFSET (screen row 198 − y, the frame's row 0 being screen row 180).
+HIT_OFFSET = LANE_ROWS.stop - HIT_ROWS[1]
 HIT_TIMER, SLIDE_END, STUN_END, WAIT_TIMER, WAIT_END = 91, 80, 64, 142, 128
 _NO_CAR = np.zeros(256, bool)
 _NO_CAR[list(ROAD_VALUES)] = True
@@ -103,8 +118,8 @@ class FreewayGame:
         return reward
 
     def world_frame(self) -> np.ndarray:
-        """The world without the agent now: the shadow's lanes, (154, 152) uint8 palette indices."""
-        return self.shadow.getScreen()[LANE_ROWS, LANE_COLUMNS].copy()
+        """The world without the agent now: the shadow's lanes, (154, 152) uint8 palette indices, row 0 the bottom."""
+        return lane_frame(self.shadow.getScreen())
 
     @property
     def chicken(self) -> Chicken:
@@ -118,6 +133,67 @@ class FreewayGame:
             raise ValueError(f"action={action} is invalid; valid range [0, 2] ({', '.join(ACTIONS)})")
         reward = self._advance(action)
         return FreewayStep(self.world_frame(), self.chicken, reward, self.real.game_over())
+
+
+def lane_frame(screen: np.ndarray) -> np.ndarray:
+    """A screen's lanes as a world frame: (154, 152), row 0 the bottom lane's last row."""
+    return np.ascontiguousarray(screen[LANE_ROWS, LANE_COLUMNS][::-1])
+
+
+def chicken_row(y: int | float) -> float:
+    """The world-frame row of the middle of the chicken's hit box at height `y` (below 0 on the bottom sidewalk)."""
+    return y + HIT_OFFSET + 1.5
+
+
+class FreewayConfig(Config):
+    """Freeway's world: nothing to choose but the episode (a game mode, the log's seed); the frame is the lanes."""
+
+    @property
+    def height(self) -> int:
+        return LANE_ROWS.stop - LANE_ROWS.start
+
+    @property
+    def width(self) -> int:
+        return LANE_COLUMNS.stop - LANE_COLUMNS.start
+
+    @property
+    def max_steps(self) -> int:
+        """Frames of a mode's recording: the game's start and each of its steps."""
+        return GAME_STEPS + 1
+
+
+@dataclass(frozen=True)
+class FreewayWorld:
+    """One mode of Freeway's world, recorded: frames (T, 154, 152) uint8 from the game's start (frame n is where an
+    episode with NOOP start n begins); Freeway has no goal; agent_start is the chicken's (row, column) on the
+    sidewalk."""
+
+    config: FreewayConfig
+    seed: int
+    frames: np.ndarray
+    goal: None = None
+    agent_start: np.ndarray = field(default_factory=lambda: np.array([chicken_row(BOTTOM_Y), CHICKEN_COLUMN]))
+
+    @property
+    def mode(self) -> int:
+        return self.seed
+
+
+def record_mode(mode: int, n_frames: int | None = None) -> FreewayWorld:
+    """The world of game `mode` from the game's start: the NOOP shadow's lanes at each of its first `n_frames`
+    steps (default the whole game, 2,049 frames)."""
+    n_frames = GAME_STEPS + 1 if n_frames is None else n_frames
+    if mode not in MODES or not 1 <= n_frames <= GAME_STEPS + 1:
+        raise ValueError(f"mode {mode} and n_frames {n_frames}: valid ranges [0, 7] and [1, {GAME_STEPS + 1}]")
+    ale = _emulator(mode)
+    frames = np.empty((n_frames, *lane_frame(ale.getScreen()).shape), np.uint8)
+    frames[0] = lane_frame(ale.getScreen())
+    noop = ale.getMinimalActionSet()[0]
+    for t in range(1, n_frames):
+        for _ in range(FRAMESKIP):
+            ale.act(noop)
+        frames[t] = lane_frame(ale.getScreen())
+    return FreewayWorld(FreewayConfig(), mode, frames)
 
 
 def chicken_step(chicken: Chicken, action: int, frame: np.ndarray) -> tuple[Chicken, float]:
@@ -145,9 +221,8 @@ def chicken_step(chicken: Chicken, action: int, frame: np.ndarray) -> tuple[Chic
 
 def _hit(frame: np.ndarray, y: int) -> bool:
     """Whether a car's pixel of the lane `frame` is in the hit box of a chicken at height `y`."""
-    top = max(HIT_ROWS[0] - y - LANE_ROWS.start, 0)
-    bottom = min(HIT_ROWS[1] - y - LANE_ROWS.start, frame.shape[0])
-    return bottom > top and bool((~_NO_CAR[frame[top:bottom, HIT_COLUMNS]]).any())
+    low, high = max(y + HIT_OFFSET, 0), min(y + HIT_OFFSET + HIT_ROWS[1] - HIT_ROWS[0], frame.shape[0])
+    return high > low and bool((~_NO_CAR[frame[low:high, HIT_COLUMNS]]).any())
 
 
 def _emulator(mode: int):

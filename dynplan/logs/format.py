@@ -13,12 +13,15 @@ Topics (log time = EPOCH + t · FRAME_PERIOD; each message's own timestamp is eq
 | /planner/search | JSON (jsonschema) | decision | (optional) the root: visits, Q, prior per action; value; goal |
 | /world/annotations | foxglove.ImageAnnotations | step | (optional) agent, true and predicted goal, action |
 
+A world without a goal (`dynplan.env.worlds.WorldEntry.has_goal`) has no /world/goal topic.
+
 Every JSON schema is one that Foxglove's schema parser takes: one type per field, objects with their properties
 (a field that may be missing is left out of `required`, never typed as a union with null).
 
-The metadata record `dynplan` holds the format and version, the world config (JSON), seed, height, width,
-n_frames, agent_start (JSON) and the dynplan version. Log times start at a fixed epoch rather than the wall
-clock, so the same seed always gives the same bytes and a log's checksum identifies its episode.
+The metadata record `dynplan` holds the format and version, the world's name (`world`; absent for the road, the
+first world), its config (JSON), seed, height, width, n_frames, agent_start (JSON) and the dynplan version. Log
+times start at a fixed epoch rather than the wall clock, so the same seed always gives the same bytes and a log's
+checksum identifies its episode.
 """
 
 from __future__ import annotations
@@ -29,8 +32,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-from dynplan.env.config import FREE, GOAL_VALUE, obstacle_classes
 
 FORMAT = "dynplan.episode"
 FORMAT_VERSION = "1"
@@ -89,12 +90,6 @@ SEARCH_JSON_SCHEMA = {
     },
     "required": ["t", "action", "visits", "q", "prior", "value", "search_ms"],
 }
-
-
-def pixel_values(width: int) -> dict[str, int]:
-    """The values a world frame `width` pixels wide may hold, by name: free road, the goal and each obstacle class
-    (the frames store's `pixel_values` attribute)."""
-    return {"free": FREE, "goal": GOAL_VALUE, **{c.name: c.value for c in obstacle_classes(width)}}
 
 
 def log_time(t: int) -> int:

@@ -23,9 +23,8 @@ from mcap.stream_reader import StreamReader
 from mcap_protobuf.decoder import DecoderFactory
 
 from dynplan.cli import InputError
-from dynplan.config import ConfigError
-from dynplan.env.config import RoadConfig
-from dynplan.env.road import World
+from dynplan.config import Config, ConfigError
+from dynplan.env.worlds import DEFAULT_WORLD, Recording, WorldEntry, world
 from dynplan.logs.format import (
     EPOCH_NS,
     FORMAT,
@@ -41,7 +40,6 @@ from dynplan.logs.format import (
     TOPIC_GOAL,
     TOPIC_IMAGINED,
     AgentTrack,
-    pixel_values,
 )
 
 
@@ -83,14 +81,15 @@ class _Scan:
 
 @dataclass(frozen=True)
 class EpisodeLog:
-    """A validated episode log. frames: (T, H, W) uint8; goal: (T, 2) float64 (y, x)."""
+    """A validated episode log of one of dynplan's worlds. frames: (T, H, W) uint8; goal: (T, 2) float64 (y, x), None
+    for a world without a goal."""
 
     path: Path
     metadata: dict[str, str]
-    config: RoadConfig
+    config: Config
     seed: int
     frames: np.ndarray
-    goal: np.ndarray
+    goal: np.ndarray | None
     agent_start: np.ndarray
     agent: AgentTrack | None
     imagined: dict[int, np.ndarray] | None = None  # replays: {t: (k, H, W) frames the planner predicted at t}
@@ -99,10 +98,15 @@ class EpisodeLog:
     def n_frames(self) -> int:
         return len(self.frames)
 
-    def world(self, config: RoadConfig | None = None) -> World:
-        """The recorded world as a `World`, optionally under another agent speed (same geometry and traffic)."""
-        config = config or self.config
-        return World(config, self.seed, self.frames, self.goal, self.agent_start)
+    @property
+    def entry(self) -> WorldEntry:
+        """The world the log records (its `world` metadata; the road where it has none)."""
+        return world(self.metadata.get("world", DEFAULT_WORLD))
+
+    def world(self, config: Config | None = None) -> Recording:
+        """The recorded episode as its world's recording (a road `World`, a `FreewayWorld`), optionally under
+        another config of the same frames (the road's agent speed)."""
+        return self.entry.rebuild(config or self.config, self.seed, self.frames, self.goal, self.agent_start)
 
 
 def _scan(path: Path) -> _Scan:
@@ -200,7 +204,8 @@ def read_episode_log(path: str | os.PathLike) -> EpisodeLog:
         raise LogError(path, f"truncated or corrupt: {what}; {listing.describe()}")
     meta = _metadata(scan)
     try:
-        config = RoadConfig.from_dict(json.loads(meta["config"]))
+        entry = world(meta.get("world", DEFAULT_WORLD))
+        config = entry.config(json.loads(meta["config"]))
         seed, n_frames = int(meta["seed"]), int(meta["n_frames"])
         height, width = int(meta["height"]), int(meta["width"])
         agent_start = np.array(json.loads(meta["agent_start"]), dtype=np.float64)
@@ -211,31 +216,33 @@ def read_episode_log(path: str | os.PathLike) -> EpisodeLog:
                              f"and agent_start {meta['agent_start']} do not describe an episode of its config "
                              f"({config.height}×{config.width}, at least 1 frame, a start [y, x])")  # fmt: skip
 
-    frames, goal = _world_topics(scan, config, n_frames, (height, width))
+    frames, goal = _world_topics(scan, entry, config, n_frames)
     agent = _agent_track(scan) if TOPIC_AGENT_POSE in listing.topics else None
     imagined = _imagined(scan, height, width) if TOPIC_IMAGINED in listing.topics else None
     return EpisodeLog(path, meta, config, seed, frames, goal, agent_start, agent, imagined)
 
 
-def _world_topics(scan: _Scan, config: RoadConfig, n_frames: int, shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
-    """The world's frames (T, H, W) and goal track (T, 2), once each topic is found to hold frames 0 … T−1 in
-    order, at their log times, with frames of the log's size holding only the world's pixel values."""
-    path, (height, width) = scan.listing.path, shape
+def _world_topics(scan: _Scan, entry: WorldEntry, config: Config, n_frames: int) -> tuple[np.ndarray, ...]:
+    """The world's frames (T, H, W) and goal track (T, 2; None for a world without a goal), once each topic is
+    found to hold frames 0 … T−1 in order, at their log times, with frames of the log's size holding only the
+    world's pixel values."""
+    path, height, width = scan.listing.path, config.height, config.width
     images = _decode(scan, TOPIC_FRAME, SCHEMA_FRAME)
-    goals = _decode(scan, TOPIC_GOAL, SCHEMA_POSE)
-    for topic in (TOPIC_FRAME, TOPIC_GOAL):
+    goals = _decode(scan, TOPIC_GOAL, SCHEMA_POSE) if entry.has_goal else images
+    for topic in (TOPIC_FRAME, TOPIC_GOAL) if entry.has_goal else (TOPIC_FRAME,):
         problem = _order_problem(scan.messages.get(topic, []))
         if problem:
             raise LogError(path, f"{topic} {problem}")
     if len(images) != n_frames or len(goals) != n_frames:
-        raise LogError(path, f"has {len(images)} frames and {len(goals)} goal poses; metadata says {n_frames}")
+        poses = f" and {len(goals)} goal poses" if entry.has_goal else ""
+        raise LogError(path, f"has {len(images)} frames{poses}; metadata says {n_frames}")
     for t, im in enumerate(images):
         if (im.height, im.width, im.encoding, im.step, len(im.data)) != (height, width, "mono8", width, height * width):
             raise LogError(path, f"{TOPIC_FRAME} message {t} is {im.height}×{im.width} {im.encoding} (step {im.step}, "
                                  f"{len(im.data)} bytes), expected {height}×{width} mono8 (step {width}, "
                                  f"{height * width} bytes)")  # fmt: skip
     frames = np.frombuffer(b"".join(im.data for im in images), np.uint8).reshape(n_frames, height, width)[:, ::-1]
-    values = sorted(set(pixel_values(config.width).values()))
+    values = sorted(set(entry.pixel_values(config).values()))
     allowed = np.zeros(256, dtype=bool)
     allowed[values] = True
     outside = ~allowed[frames]
@@ -243,6 +250,8 @@ def _world_topics(scan: _Scan, config: RoadConfig, n_frames: int, shape: tuple[i
         t, y, x = (int(i) for i in np.argwhere(outside)[0])
         raise LogError(path, f"{TOPIC_FRAME} message {t} has pixel value {frames[t, y, x]} at (y {y}, x {x}); "
                              f"the world's pixel values are {', '.join(map(str, values))}")  # fmt: skip
+    if not entry.has_goal:
+        return np.ascontiguousarray(frames), None
     goal = np.array([(g.pose.position.y, g.pose.position.x) for g in goals], dtype=np.float64)
     if not np.isfinite(goal).all():
         raise LogError(path, f"{TOPIC_GOAL} message {int(np.argwhere(~np.isfinite(goal))[0, 0])} is not finite")

@@ -1,8 +1,9 @@
 """Whether a log is what its seed records. dynplan's recordings are reproducible from their seed and world config
-(about 20 ms a log), so a log that says dynplan recorded it (its `dynplan` record carries `dynplan_version`) is
-checked against a fresh recording: equal bytes settle it at once; otherwise its content (record, frames, goal
-track, agent start) must be the recording's, since another version of dynplan or of its compression libraries may
-encode the same episode in other bytes. A log of one's own world (no `dynplan_version`) is read for what it is.
+(about 20 ms a road log, 1 s a Freeway mode), so a log that says dynplan recorded it (its `dynplan` record carries
+`dynplan_version`) is checked against a fresh recording: equal bytes settle it at once; otherwise its content
+(record, frames, goal track, agent start) must be the recording's, since another version of dynplan or of its
+compression libraries may encode the same episode in other bytes. A log of one's own world (no `dynplan_version`)
+is read for what it is.
 """
 
 from __future__ import annotations
@@ -13,18 +14,18 @@ from pathlib import Path
 
 import numpy as np
 
-from dynplan.env.road import World, generate_world
+from dynplan.env.worlds import DEFAULT_WORLD, Recording
 from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
 from dynplan.logs.writer import episode_metadata, write_episode_log
 
 
-def fresh_recording(world: World, n_frames: int, name: str = "episode.mcap") -> bytes:
+def fresh_recording(world: Recording, n_frames: int, name: str = "episode.mcap") -> bytes:
     """The bytes dynplan writes for the log of `world` over `n_frames` frames."""
     with tempfile.TemporaryDirectory(prefix="dynplan-record-") as folder:
         return write_episode_log(Path(folder, name), world, n_frames=n_frames).read_bytes()
 
 
-def recording_problem(path: str | os.PathLike, log: EpisodeLog, world: World, fresh: bytes) -> str | None:
+def recording_problem(path: str | os.PathLike, log: EpisodeLog, world: Recording, fresh: bytes) -> str | None:
     """How the log at `path` (read as `log`) differs from `fresh`, the recording of `world`; None when it is that
     recording (in its bytes, or in what it records)."""
     if Path(path).read_bytes() == fresh:
@@ -37,10 +38,10 @@ def recording_problem(path: str | os.PathLike, log: EpisodeLog, world: World, fr
     if theirs != ours:
         keys = sorted(k for k in set(ours) | set(theirs) if ours.get(k) != theirs.get(k))
         return f"its record differs from the seed's in {', '.join(keys)}"
-    for name, (a, b) in {"frames": (log.frames, world.frames[: log.n_frames]),
-                         "goal track": (log.goal, world.goal[: log.n_frames]),
+    goal = None if world.goal is None else world.goal[: log.n_frames]
+    for name, (a, b) in {"frames": (log.frames, world.frames[: log.n_frames]), "goal track": (log.goal, goal),
                          "agent start": (log.agent_start, world.agent_start)}.items():  # fmt: skip
-        if not np.array_equal(a, b):
+        if not (a is None and b is None) and (a is None or b is None or not np.array_equal(a, b)):
             return f"its {name} differ from the seed's"
     return None
 
@@ -49,10 +50,12 @@ def check_recorded(log: EpisodeLog) -> EpisodeLog:
     """`log`, if it is what its seed records or a log of one's own world; otherwise a LogError naming the file."""
     if "dynplan_version" not in log.metadata or log.metadata.get("kind") != "world":
         return log  # one's own episode, or a replay (which records a planner, not only a seed)
-    world = generate_world(log.config, log.seed, log.n_frames)
+    entry = log.entry
+    world = entry.record(log.config, log.seed, log.n_frames)
     problem = recording_problem(log.path, log, world, fresh_recording(world, log.n_frames, log.path.name))
     if problem:
-        again = f"python -m flows.collect --out {log.path.parent} --seed {log.seed} --episodes 1"
+        option = f" --world {entry.name}" if entry.name != DEFAULT_WORLD else ""
+        again = f"python -m flows.collect{option} --out {log.path.parent} --seed {log.seed} --episodes 1"
         raise LogError(log.path, f"is not what seed {log.seed} records: {problem} (the file is damaged; record it "
                        f"again: {again})")  # fmt: skip
     return log

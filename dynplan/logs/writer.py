@@ -24,7 +24,7 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 
 from dynplan.env.colors import draw_agent
-from dynplan.env.road import World
+from dynplan.env.worlds import DEFAULT_WORLD, Recording, world_of
 from dynplan.files import atomic_path
 from dynplan.logs.format import (
     FORMAT,
@@ -75,11 +75,14 @@ def imagined_strip(frames: np.ndarray) -> np.ndarray:
     return np.concatenate(list(frames), axis=1)
 
 
-def episode_metadata(world: World, n_frames: int, kind: str) -> dict[str, str]:
-    """The `dynplan` metadata record of a log (all values strings, as MCAP requires)."""
+def episode_metadata(world: Recording, n_frames: int, kind: str) -> dict[str, str]:
+    """The `dynplan` metadata record of a log (all values strings, as MCAP requires). `world` names the world
+    unless it is the road, the first (whose logs never carried the key)."""
     from dynplan.version import __version__
 
+    name = world_of(world.config).name
     return {
+        **({"world": name} if name != DEFAULT_WORLD else {}),
         "format": FORMAT,
         "format_version": FORMAT_VERSION,
         "kind": kind,
@@ -93,13 +96,13 @@ def episode_metadata(world: World, n_frames: int, kind: str) -> dict[str, str]:
     }
 
 
-def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack | None = None,
+def write_episode_log(path: str | os.PathLike, world: Recording, agent: AgentTrack | None = None,
                       n_frames: int | None = None, imagined: dict[int, np.ndarray] | None = None,
                       search: list[dict] | None = None) -> Path:  # fmt: skip
-    """Write `world`'s first `n_frames` frames (default all) and goal track to `path`, plus, for a replay, the
-    `agent`'s track (pose, step, its view: the frame with the agent drawn, and annotations over the frame), the
-    planner's `imagined` frames per decision ({t: (k, H, W) predicted frames t+1 … t+k}) and its `search` rows
-    per decision (`SEARCH_JSON_SCHEMA`: the root's visits, Q and prior, its value and the predicted goal).
+    """Write `world`'s first `n_frames` frames (default all) and goal track (if it has one) to `path`, plus, for a
+    replay, the `agent`'s track (pose, step, its view: the frame with the agent drawn, and annotations over the
+    frame), the planner's `imagined` frames per decision ({t: (k, H, W) predicted frames t+1 … t+k}) and its
+    `search` rows per decision (`SEARCH_JSON_SCHEMA`: the root's visits, Q and prior, its value and the predicted goal).
 
     The file appears only when complete (temporary file, then rename).
     """
@@ -112,12 +115,13 @@ def write_episode_log(path: str | os.PathLike, world: World, agent: AgentTrack |
         frame_schema = register_schema(writer, RawImage)
         pose_schema = register_schema(writer, PoseInFrame)
         frame_channel = writer.register_channel(TOPIC_FRAME, "protobuf", frame_schema)
-        goal_channel = writer.register_channel(TOPIC_GOAL, "protobuf", pose_schema)
+        goal_channel = None if world.goal is None else writer.register_channel(TOPIC_GOAL, "protobuf", pose_schema)
         writer.add_metadata(METADATA_NAME, episode_metadata(world, n_frames, "world" if agent is None else "agent"))
         for t in range(n_frames):
             time = log_time(t)
             writer.add_message(frame_channel, time, image_message(t, world.frames[t]).SerializeToString(), time, t)
-            writer.add_message(goal_channel, time, pose_message(t, world.goal[t]).SerializeToString(), time, t)
+            if goal_channel is not None:
+                writer.add_message(goal_channel, time, pose_message(t, world.goal[t]).SerializeToString(), time, t)
         if agent is not None:
             _write_agent(writer, agent, pose_schema)
             view_channel = writer.register_channel(TOPIC_AGENT_VIEW, "protobuf", frame_schema)
