@@ -74,9 +74,9 @@ def test_a_freeway_log_with_a_value_outside_the_palette_or_an_unknown_world_is_r
     bad = write_episode_log(tmp_path / "bad.mcap", freeway.FreewayWorld(mode_1.config, 1, frames))
     with pytest.raises(LogError, match=r"/world/frame message 3 has pixel value 7 at \(y 10, x 20\)"):
         read_episode_log(bad)
+    other = freeway.FreewayWorld(mode_1.config, 1, record_mode(2, 120).frames)
     with pytest.raises(LogError, match="is not what seed 1 records: its frames differ.*--world freeway"):
-        read_recorded_log(write_episode_log(tmp_path / "other.mcap", freeway.FreewayWorld(mode_1.config, 1,
-                                                                                          record_mode(2, 120).frames)))
+        read_recorded_log(write_episode_log(tmp_path / "other.mcap", other))
     from mcap.writer import Writer
 
     path = tmp_path / "unknown.mcap"

@@ -49,8 +49,9 @@ ACTIONS = ("NOOP", "UP", "DOWN")
 ROAD_VALUES = (6, 12, 30)
 #: Every value of a lane frame, by name (the same in every mode): the road's, the cars' tyres and each lane's car
 #: colour, lanes counted from the bottom.
-PIXEL_VALUES = {"road": 6, "lane_mark": 12, "median": 30, "tyres": 0,
-                **{f"car_lane_{i + 1}": v for i, v in enumerate((26, 216, 68, 136, 36, 130, 74, 18, 220, 66))}}
+CAR_COLOURS = (26, 216, 68, 136, 36, 130, 74, 18, 220, 66)
+CAR_LANES = {f"car_lane_{i + 1}": v for i, v in enumerate(CAR_COLOURS)}
+PIXEL_VALUES = {"road": 6, "lane_mark": 12, "median": 30, "tyres": 0, **CAR_LANES}
 #: The chicken's column in a lane frame (the middle of its columns).
 CHICKEN_COLUMN = 39.0
 #: The chicken's rule (`chicken_step`), measured against the emulator: heights from the bottom sidewalk to the
