@@ -16,7 +16,10 @@ dynplan world frame: row 0 is the bottom), columns the screen's 8–159.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
 
 import numpy as np
 from pydantic import Field
@@ -34,6 +37,7 @@ GAME_STEPS = 2048
 #: The lanes, (rows, columns) of the screen: 10 lanes 16 rows apart, cars 8 × 10 pixels.
 LANE_ROWS = slice(27, 181)
 LANE_COLUMNS = slice(8, 160)
+LANE_HEIGHT, LANE_WIDTH = LANE_ROWS.stop - LANE_ROWS.start, LANE_COLUMNS.stop - LANE_COLUMNS.start
 #: RAM byte of the chicken's height above the bottom (6 on the sidewalk … 177 at the top).
 CHICKEN_Y_RAM = 14
 #: RAM byte of the chicken's timer: ≥ 128 while it waits on the sidewalk after a crossing, 1–127 while a car's hit
@@ -52,18 +56,24 @@ ROAD_VALUES = (6, 12, 30)
 CAR_COLOURS = (26, 216, 68, 136, 36, 130, 74, 18, 220, 66)
 CAR_LANES = {f"car_lane_{i + 1}": v for i, v in enumerate(CAR_COLOURS)}
 PIXEL_VALUES = {"road": 6, "lane_mark": 12, "median": 30, "tyres": 0, **CAR_LANES}
+#: The chicken's sprite box in a lane frame: rows y − 20 … y − 13 at height y, the chicken's columns (and one more).
+SPRITE_ROWS = (-20, -12)
+SPRITE_COLUMNS = slice(CHICKEN_COLUMNS.start - LANE_COLUMNS.start, CHICKEN_COLUMNS.start - LANE_COLUMNS.start + 8)
+#: The chicken's sprite at each height 0 … 177, (178, 8, 8) bool over its box (row r is the box's row y − 20 + r),
+#: measured from the emulator by `python -m dynplan.analysis.freeway_sprites`.
+SPRITES = Path(__file__).with_name("freeway_chicken.npy")
 #: The chicken's column in a lane frame (the middle of its columns).
 CHICKEN_COLUMN = 39.0
 #: The chicken's rule (`chicken_step`), measured against the emulator: heights from the bottom sidewalk to the
-#: crossing, the screen rows (195 − y … 198 − y) and the lane frame's columns where a car's pixel hits it (the
-#: chicken's columns but the first), the timer a hit sets, the timer below which a knocked chicken stops sliding
-#: back, the timer at which its stun ends, the timer a crossing sets and the one at which its wait ends.
+#: crossing, the timer a hit sets, the timer below which a knocked chicken stops sliding back, the timer at which
+#: its stun ends, the timer a crossing sets and the one at which its wait ends.
 BOTTOM_Y, TOP_Y = 6, 177
-HIT_ROWS = (195, 199)
-HIT_COLUMNS = slice(CHICKEN_COLUMNS.start + 1 - LANE_COLUMNS.start, CHICKEN_COLUMNS.stop - LANE_COLUMNS.start)
-#: The hit box's lowest world-frame row is y + HIT_OFFSET (screen row 198 − y, the frame's row 0 being screen row 180).
-HIT_OFFSET = LANE_ROWS.stop - HIT_ROWS[1]
 HIT_TIMER, SLIDE_END, STUN_END, WAIT_TIMER, WAIT_END = 91, 80, 64, 142, 128
+#: How far a lane's cars may move in one step, in columns (the fastest mode's 8, and a margin).
+MAX_SHIFT = 10
+#: The lanes of a lane frame: lane i (from the bottom) is rows 16 i … 16 i + 15, its cars on rows 16 i + 1 … 16 i + 8.
+LANES, LANE_PITCH = 10, 16
+CAR_ROWS = np.arange(LANES)[:, None] * LANE_PITCH + 1 + np.arange(8)
 _NO_CAR = np.zeros(256, bool)
 _NO_CAR[list(ROAD_VALUES)] = True
 
@@ -142,8 +152,8 @@ def lane_frame(screen: np.ndarray) -> np.ndarray:
 
 
 def chicken_row(y: int | float) -> float:
-    """The world-frame row of the middle of the chicken's hit box at height `y` (below 0 on the bottom sidewalk)."""
-    return y + HIT_OFFSET + 1.5
+    """The world-frame row of the middle of the chicken's sprite at height `y` (below 0 on the bottom sidewalk)."""
+    return y + (SPRITE_ROWS[0] + SPRITE_ROWS[1] - 1) / 2
 
 
 class FreewayConfig(Config):
@@ -151,11 +161,11 @@ class FreewayConfig(Config):
 
     @property
     def height(self) -> int:
-        return LANE_ROWS.stop - LANE_ROWS.start
+        return LANE_HEIGHT
 
     @property
     def width(self) -> int:
-        return LANE_COLUMNS.stop - LANE_COLUMNS.start
+        return LANE_WIDTH
 
     @property
     def max_steps(self) -> int:
@@ -197,13 +207,20 @@ def record_mode(mode: int, n_frames: int | None = None) -> FreewayWorld:
     return FreewayWorld(FreewayConfig(), mode, frames)
 
 
-def chicken_step(chicken: Chicken, action: int, frame: np.ndarray) -> tuple[Chicken, float]:
-    """The chicken after one agent step of `action` (0 NOOP, 1 UP, 2 DOWN) in a world whose lane frame after the
-    step is `frame` (as `FreewayGame.world_frame` gives it, or a world model imagines it), and the step's reward
-    (1 for a crossing). Frame by frame, as the game: a free chicken moves 1 pixel a frame; a car's pixel in its
-    hit box sets the timer to 91 and it slides back 1 pixel a frame while the timer is ≥ 80, then stands stunned
-    until the timer passes 64; the timer counts down on every other frame; a crossing puts it on the sidewalk to
-    wait until its timer reaches 128. The cars of `frame` stand for the step's four frames."""
+def chicken_step(chicken: Chicken, action: int, before: np.ndarray, after: np.ndarray) -> tuple[Chicken, float]:
+    """The chicken after one agent step of `action` (0 NOOP, 1 UP, 2 DOWN) from the world's lane frame `before` to
+    `after` (as `FreewayGame.world_frame` gives them, or a world model imagines them), and the step's reward (1 for
+    a crossing): `chicken_frames` over the step's frames as `step_frames` estimates them."""
+    return chicken_frames(chicken, action, step_frames(before, after))
+
+
+def chicken_frames(chicken: Chicken, action: int, drawn: Sequence[np.ndarray]) -> tuple[Chicken, float]:
+    """The chicken after one agent step of `action` whose four emulator frames were preceded by the lanes `drawn`
+    (the frame before the step, then the three within it), and the step's reward. Frame by frame, as the game: a
+    free chicken moves 1 pixel a frame, and is hit when a car's pixel met its sprite on the frame drawn before (the
+    console's collision latch, read a frame late); a hit sets the timer to 91, the chicken slides back 1 pixel a
+    frame while the timer is ≥ 80, then stands stunned until the timer passes 64; the timer counts down on every
+    other frame; a crossing puts it on the sidewalk to wait until its timer reaches 128."""
     y, timer = chicken.y, chicken.timer
     for k in range(FRAMESKIP):
         tick = k % 2 == 1
@@ -213,17 +230,52 @@ def chicken_step(chicken: Chicken, action: int, frame: np.ndarray) -> tuple[Chic
             y = max(y - 1, BOTTOM_Y) if timer >= SLIDE_END else y
             timer = 0 if timer - tick <= STUN_END else timer - tick
         else:
+            hit = sprite_hit(drawn[k], y)
             y = max(y + (0, 1, -1)[action], BOTTOM_Y)
             if y >= TOP_Y:
                 return Chicken(BOTTOM_Y, WAIT_TIMER), 1.0
-            timer = HIT_TIMER if _hit(frame, y) else 0
+            timer = HIT_TIMER if hit else 0
     return Chicken(y, timer), 0.0
 
 
-def _hit(frame: np.ndarray, y: int) -> bool:
-    """Whether a car's pixel of the lane `frame` is in the hit box of a chicken at height `y`."""
-    low, high = max(y + HIT_OFFSET, 0), min(y + HIT_OFFSET + HIT_ROWS[1] - HIT_ROWS[0], frame.shape[0])
-    return high > low and bool((~_NO_CAR[frame[low:high, HIT_COLUMNS]]).any())
+def sprite_hit(frame: np.ndarray, y: int) -> bool:
+    """Whether a car's pixel of the lane `frame` meets the chicken's sprite at height `y`."""
+    low, high = y + SPRITE_ROWS[0], y + SPRITE_ROWS[1]
+    if high <= 0 or low >= frame.shape[0]:
+        return False
+    sprite = _sprites()[y][max(-low, 0) : 8 - max(high - frame.shape[0], 0)]
+    cars = ~_NO_CAR[frame[max(low, 0) : min(high, frame.shape[0]), SPRITE_COLUMNS]]
+    return bool((cars & sprite).any())
+
+
+@cache
+def _sprites() -> np.ndarray:
+    return np.load(SPRITES)
+
+
+def lane_shifts(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """(10,) how many columns each lane's cars moved from lane frame `before` to `after` (positive: right): the shift
+    in [−10, 10] under which the most car columns of `before` meet those of `after`, the smallest on a tie."""
+
+    def columns(frame: np.ndarray) -> np.ndarray:  # (10, W): where lane i's cars are
+        return (~_NO_CAR[frame[CAR_ROWS]]).any(axis=1)
+
+    was, now = columns(before), columns(after)
+    shifts = np.array(sorted(range(-MAX_SHIFT, MAX_SHIFT + 1), key=abs))
+    overlap = np.stack([(np.roll(was, s, axis=1) & now).sum(axis=1) for s in shifts])  # (shifts, lanes)
+    return shifts[overlap.argmax(axis=0)]
+
+
+def step_frames(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """(4, H, W) the lanes drawn before each emulator frame of a step from `before` to `after`: `before`, then
+    each lane's cars moved 1/4, 2/4 and 3/4 of their shift (`lane_shifts`), rounded."""
+    drawn = np.repeat(before[None], FRAMESKIP, axis=0)
+    for lane, shift in enumerate(lane_shifts(before, after)):
+        rows = slice(lane * LANE_PITCH, (lane + 1) * LANE_PITCH)
+        for k in range(1, FRAMESKIP):
+            moved = int(np.sign(shift)) * int(np.floor(k * abs(int(shift)) / FRAMESKIP + 0.5))
+            drawn[k, rows] = np.roll(before[rows], moved, axis=1)
+    return drawn
 
 
 def _emulator(mode: int):
