@@ -8,7 +8,8 @@ so an interrupted evaluation resumes per episode — then aggregates the evaluat
 table1.md. The run `evaluation` is Table 1's; `--first-seed 2000000` with another `--log-dir` and `--run` plays the
 validation episodes instead, where a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`);
 any other run on the evaluation episodes is a candidate's. `--table1` plays every case of the complete Table 1
-(both world-model configurations, every technique and speed the table lists) in one command.
+(both world-model configurations, every technique and speed the table lists) in one command. `--world freeway`
+evaluates Freeway's techniques on the real game instead (`flows.evaluate_freeway`).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from prefect.futures import as_completed
 
 from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
+from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import (
     AGENT_SPEEDS,
@@ -125,8 +127,21 @@ def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = Non
     return rows
 
 
+def _world(argv: list[str]) -> str:
+    """The `--world` an argument list names (`--world W` or `--world=W`; default road)."""
+    world = DEFAULT_WORLD
+    for i, arg in enumerate(argv):
+        if arg == "--world" and i + 1 < len(argv):
+            world = argv[i + 1]
+        elif arg.startswith("--world="):
+            world = arg.split("=", 1)[1]
+    return world
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = CommandParser(prog="python -m flows.evaluate", description=__doc__)
+    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
+                        help="the world (default road; `--world freeway --help` lists Freeway's options)")  # fmt: skip
     parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=list(TECHNIQUES),
                         metavar="TECHNIQUE", help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
                         + " (default: oracle zero random)")  # fmt: skip
@@ -196,6 +211,11 @@ def _specs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[C
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
+    argv = sys.argv[1:] if argv is None else argv
+    if _world(argv) == "freeway":
+        from flows import evaluate_freeway
+
+        return evaluate_freeway.main(argv)
     parser = _parser()
     args = parser.parse_args(argv)
     try:
@@ -214,7 +234,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     except ValueError as error:
         parser.error(str(error))
     plan, agent = _specs(parser, args)
-    command = shlex.join(["python", "-m", "flows.evaluate", *(sys.argv[1:] if argv is None else argv)])
+    command = shlex.join(["python", "-m", "flows.evaluate", *argv])
     if not address:  # the local pool's episodes share the cores; more threads only contend
         cores = os.cpu_count() or 1
         torch.set_num_threads(max(1, cores // (args.workers or cores)))

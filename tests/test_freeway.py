@@ -174,16 +174,3 @@ def test_the_rule_on_an_empty_road():
     car[58 + freeway.SPRITE_ROWS[0] : 58 + freeway.SPRITE_ROWS[1], freeway.SPRITE_COLUMNS] = 136  # over the chicken
     hit = chicken_step(Chicken(58), 1, car, car)[0]
     assert hit == Chicken(56, freeway.HIT_TIMER - 2)  # hit on the step's first frame: sliding back
-
-
-def test_the_oracle_waits_for_a_car_and_then_crosses():
-    from dynplan.analysis.freeway_oracle import best_action, drawn_frames
-
-    frames = np.full((40, 154, 152), 6, np.uint8)
-    frames[1:4, 50:58, 30:50] = 136  # a car just above a chicken at height 60 for three steps
-    drawn, chicken, actions = drawn_frames(frames), Chicken(60), []
-    for t in range(8):
-        actions.append(best_action(chicken, drawn, t, 6))
-        chicken, _ = chicken_step(chicken, actions[-1], frames[t], frames[t + 1])
-        assert not chicken.knocked, (t, actions)
-    assert actions[0] == 0 and chicken.y > 64  # it waits below the car (not lower), then goes up past it

@@ -1,0 +1,133 @@
+"""Freeway's evaluation: each technique plays the real game (the score is the emulator's, never the rule's).
+
+An episode is a game mode and a NOOP start (drawn from a seed); the chicken is read from the game's RAM and the
+world through the NOOP shadow. Techniques: `oracle` plans with the true future (the mode's recording from the
+episode's start on), `zero` with lanes that hold no car after the frame now, `up` always plays UP and `random`
+draws each action uniformly. One result file per episode (`RESULTS/RUN/mode<m>/<technique>-k<k>-e<i>.json`,
+written atomically), so an interrupted evaluation resumes per episode.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from pydantic import Field
+
+from dynplan.config import Config
+from dynplan.env.freeway import ROAD_VALUES, FreewayEpisode, FreewayGame, record_mode
+from dynplan.files import write_bytes_atomic
+from dynplan.planning.chicken import ChickenSearch, plan_chicken
+
+TECHNIQUES = ("oracle", "zero", "up", "random")
+#: Techniques that plan (the others' decisions take no search).
+PLANNERS = ("oracle", "zero")
+
+
+class FreewayPlan(Config):
+    """Which episodes an evaluation plays: `episodes` NOOP starts of game `mode` drawn from `seed`."""
+
+    mode: int = Field(0, ge=0, le=7, description="the game mode (its traffic)")
+    episodes: int = Field(20, ge=1, le=1000, description="episodes of the mode")
+    seed: int = Field(0, ge=0, le=2**31, description="seed of the NOOP starts' draw")
+
+    def episode_list(self) -> list[FreewayEpisode]:
+        """The episodes: NOOP starts drawn uniformly from 0 … 30 with the seed and the mode."""
+        starts = np.random.default_rng([self.seed, self.mode]).integers(0, 31, self.episodes)
+        return [FreewayEpisode(mode=self.mode, noop_start=int(n)) for n in starts]
+
+
+@dataclass(frozen=True)
+class FreewayResult:
+    """One episode played: the game's score, the times a car knocked the chicken back, the steps played and the
+    median milliseconds of a decision (the search's; None for a technique that does not search)."""
+
+    technique: str
+    mode: int
+    noop_start: int
+    episode: int
+    horizon: int
+    score: float
+    knocks: int
+    steps: int
+    decision_ms: float | None
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def play_episode(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0) -> FreewayResult:
+    """Play `episode` of the real game with `technique` to the game's end."""
+    if technique not in TECHNIQUES:
+        raise ValueError(f"technique {technique!r} is not one of {', '.join(TECHNIQUES)}")
+    future = record_mode(episode.mode).frames[episode.noop_start :] if technique == "oracle" else None
+    game, rng = FreewayGame(episode), np.random.default_rng(seed)
+    frame, t, score, knocks, ms = game.world_frame(), 0, 0.0, 0, []
+    road = np.full((search.horizon, *frame.shape), ROAD_VALUES[0], np.uint8)
+    while True:
+        chicken = game.chicken
+        if technique in PLANNERS:
+            frames = future[t : t + search.horizon + 1] if future is not None else np.concatenate([frame[None], road])
+            decision = plan_chicken(chicken, frames, search)
+            action = decision.action
+            ms.append(decision.search_ms)
+        else:
+            action = 1 if technique == "up" else int(rng.integers(0, 3))
+        step = game.step(action)
+        knocks += chicken.timer == 0 and step.chicken.knocked
+        score, t, frame = score + step.reward, t + 1, step.frame
+        if step.done:
+            median = round(float(np.median(ms)), 3) if ms else None
+            return FreewayResult(technique, episode.mode, episode.noop_start, -1, search.horizon, score, knocks, t,
+                                 median)  # fmt: skip
+
+
+def result_path(results: str | os.PathLike, run: str, technique: str, mode: int, horizon: int, index: int) -> Path:
+    """Where the result of episode `index` of a technique at a horizon lives in a run."""
+    return Path(results, run, f"mode{mode}", f"{technique}-k{horizon}-e{index:03d}.json")
+
+
+def evaluate_episode(results: str | os.PathLike, run: str, technique: str, plan: FreewayPlan, index: int,
+                     search: ChickenSearch) -> FreewayResult:  # fmt: skip
+    """Episode `index` of `plan` played by `technique` and written to the run, unless the run already holds it."""
+    path = result_path(results, run, technique, plan.mode, search.horizon, index)
+    if path.is_file():
+        return read_result(path)
+    episode = plan.episode_list()[index]
+    played = play_episode(technique, episode, search, seed=plan.seed * 1000 + index)
+    result = FreewayResult(**{**played.to_dict(), "episode": index})
+    write_bytes_atomic(path, (json.dumps(result.to_dict(), sort_keys=True) + "\n").encode())
+    return result
+
+
+def read_result(path: str | os.PathLike) -> FreewayResult:
+    """One episode's result file; a ValueError naming the file if it is not one."""
+    try:
+        return FreewayResult(**json.loads(Path(path).read_text()))
+    except (OSError, ValueError, TypeError) as error:
+        raise ValueError(f"{path}: not a Freeway result ({error}); delete it to play the episode again") from None
+
+
+def read_run(results: str | os.PathLike, run: str) -> list[FreewayResult]:
+    """Every episode result of a run, in file order."""
+    return [read_result(p) for p in sorted(Path(results, run).glob("mode*/*.json"))]
+
+
+def summarise(rows: list[FreewayResult]) -> list[dict]:
+    """Per (mode, technique, horizon): episodes, mean score ± std, knocks an episode, median decision ms."""
+    groups: dict[tuple, list[FreewayResult]] = {}
+    for row in rows:
+        groups.setdefault((row.mode, row.technique, row.horizon), []).append(row)
+    order = {name: i for i, name in enumerate(TECHNIQUES)}
+    summary = []
+    for (mode, technique, horizon), group in sorted(groups.items(), key=lambda g: (g[0][0], order[g[0][1]], g[0][2])):
+        scores = np.array([r.score for r in group])
+        ms = [r.decision_ms for r in group if r.decision_ms is not None]
+        summary.append({"mode": mode, "technique": technique, "horizon": horizon, "episodes": len(group),
+                        "score": round(float(scores.mean()), 2), "std": round(float(scores.std()), 2),
+                        "knocks": round(float(np.mean([r.knocks for r in group])), 2),
+                        "decision_ms": round(float(np.median(ms)), 3) if ms else None})  # fmt: skip
+    return summary

@@ -1,0 +1,86 @@
+"""Planning Freeway's chicken and evaluating it on the real game: the exact search crosses an empty road, waits for
+a car rather than meet it, and counts crossings within its horizon; the oracle, planning with the true future, scores
+above every world-model agent of the public scoreboard without a knock; an evaluation writes one result file per
+episode and resumes from them."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from dynplan.config import ConfigError
+from dynplan.env.freeway import BOTTOM_Y, ROAD_VALUES, Chicken, FreewayEpisode, chicken_step
+from dynplan.evaluation import freeway as evaluation
+from dynplan.evaluation.freeway import FreewayPlan, FreewayResult, evaluate_episode, read_run, summarise
+from dynplan.planning.chicken import ChickenSearch, plan_chicken
+
+pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
+
+ROAD = np.full((9, 154, 152), ROAD_VALUES[0], np.uint8)
+
+
+def test_on_an_empty_road_the_chicken_goes_up_and_counts_its_crossings():
+    decision = plan_chicken(Chicken(BOTTOM_Y), ROAD)
+    assert decision.action == 1 and list(decision.crossings) == [0, 0, 0]
+    assert decision.height[1] == BOTTOM_Y + 32  # 8 steps of 4 pixels
+    assert decision.height[1] > decision.height[0] == decision.height[2]  # not below the sidewalk
+    near_the_top = plan_chicken(Chicken(170), ROAD, ChickenSearch(horizon=3))
+    assert near_the_top.action == 1 and near_the_top.crossings[1] == 1 and near_the_top.search_ms >= 0
+    with pytest.raises(ValueError, match="needs the frame now and one more"):
+        plan_chicken(Chicken(BOTTOM_Y), ROAD[:1])
+    with pytest.raises(ConfigError, match="horizon=0 is invalid"):
+        ChickenSearch(horizon=0)
+
+
+def test_the_chicken_waits_for_a_car_rather_than_meet_it():
+    frames = np.full((40, 154, 152), ROAD_VALUES[0], np.uint8)
+    frames[1:4, 50:58, 30:50] = 136  # a car just above a chicken at height 60 for three steps
+    chicken, actions = Chicken(60), []
+    for t in range(8):
+        actions.append(plan_chicken(chicken, frames[t : t + 7], ChickenSearch(horizon=6)).action)
+        chicken, _ = chicken_step(chicken, actions[-1], frames[t], frames[t + 1])
+        assert not chicken.knocked, (t, actions)
+    assert actions[0] == 0 and chicken.y > 64  # it waits below the car (not lower), then goes up past it
+
+
+def test_an_evaluations_episodes_are_drawn_from_its_seed():
+    plan = FreewayPlan(mode=1, episodes=20, seed=3)
+    starts = [e.noop_start for e in plan.episode_list()]
+    assert starts == [e.noop_start for e in FreewayPlan(mode=1, episodes=20, seed=3).episode_list()]
+    assert all(0 <= n <= 30 for n in starts) and len(set(starts)) > 5
+    assert starts != [e.noop_start for e in FreewayPlan(mode=1, episodes=20, seed=4).episode_list()]
+    with pytest.raises(ConfigError, match=r"mode=8 is invalid.*valid range \[0, 7\]"):
+        FreewayPlan(mode=8)
+
+
+def test_an_evaluation_resumes_from_its_result_files(tmp_path, monkeypatch):
+    plan, search = FreewayPlan(mode=0, episodes=2, seed=0), ChickenSearch(horizon=4)
+    played = evaluate_episode(tmp_path, "run", "up", plan, 1, search)
+    assert played.episode == 1 and played.noop_start == plan.episode_list()[1].noop_start and played.score >= 20
+    monkeypatch.setattr(evaluation, "play_episode", lambda *a, **k: pytest.fail("an episode the run holds is replayed"))
+    assert evaluate_episode(tmp_path, "run", "up", plan, 1, search) == played
+    (tmp_path / "run" / "mode0" / "zero-k4-e000.json").write_text("{not json")
+    with pytest.raises(ValueError, match="zero-k4-e000.json: not a Freeway result .* delete it"):
+        read_run(tmp_path, "run")
+
+
+def test_a_summary_gives_each_techniques_mean_score_and_knocks():
+    def row(technique, score, knocks, ms=None):
+        return FreewayResult(technique, 0, 0, 0, 8, score, knocks, 2048, ms)
+
+    rows = [row("up", 21, 40), row("oracle", 34, 0, 9.0), row("up", 23, 44), row("oracle", 33, 1, 11.0)]
+    summary = summarise(rows)
+    assert [s["technique"] for s in summary] == ["oracle", "up"]
+    assert summary[0] | {} == {"mode": 0, "technique": "oracle", "horizon": 8, "episodes": 2, "score": 33.5,
+                               "std": 0.5, "knocks": 0.5, "decision_ms": 10.0}  # fmt: skip
+    assert summary[1]["score"] == 22.0 and summary[1]["decision_ms"] is None
+    json.dumps(summary)
+
+
+@pytest.mark.slow
+def test_the_oracle_plays_the_real_game_above_the_scoreboard():
+    """With the true future the search scores ≥ 33.5 without a knock (STORM's 33.5 tops the world-model agents)."""
+    played = evaluation.play_episode("oracle", FreewayEpisode(mode=0, noop_start=7), ChickenSearch(horizon=8))
+    assert played.score >= 33.5 and played.knocks == 0 and played.steps == 2048 - 7
