@@ -84,3 +84,17 @@ def test_the_oracle_plays_the_real_game_above_the_scoreboard():
     """With the true future the search scores ≥ 33.5 without a knock (STORM's 33.5 tops the world-model agents)."""
     played = evaluation.play_episode("oracle", FreewayEpisode(mode=0, noop_start=7), ChickenSearch(horizon=8))
     assert played.score >= 33.5 and played.knocks == 0 and played.steps == 2048 - 7
+
+
+def test_merging_coinciding_plans_changes_no_decision():
+    """The search merges action sequences that reach the same state after the same first action; the naive search
+    over all 3^k sequences (`dynplan.bench.freeway`) picks the same action along a stretch of a real game."""
+    from dynplan.bench.freeway import naive_action
+    from dynplan.env.freeway import FreewayGame, record_mode
+
+    future, game = record_mode(1, 260).frames, FreewayGame(FreewayEpisode(mode=1))
+    for t in range(0, 250):
+        decision = plan_chicken(game.chicken, future[t : t + 6], ChickenSearch(horizon=5))
+        if t % 10 == 0:
+            assert decision.action == naive_action(game.chicken, future[t : t + 6], 5), t
+        game.step(decision.action)

@@ -13,6 +13,7 @@ from dynplan.bench.data import bench_data
 from dynplan.bench.decision import bench_decision
 from dynplan.bench.decoding import bench_decoding
 from dynplan.bench.evaluation import bench_evaluation
+from dynplan.bench.freeway import bench_freeway
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.pipeline import bench_pipeline
@@ -36,6 +37,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "evaluation": bench_evaluation,
     "sharing": bench_sharing,
     "pipeline": bench_pipeline,
+    "freeway": bench_freeway,
 }
 
 __all__ = ["BENCHMARKS", "Results"]

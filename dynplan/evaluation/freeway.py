@@ -131,3 +131,31 @@ def summarise(rows: list[FreewayResult]) -> list[dict]:
                         "knocks": round(float(np.mean([r.knocks for r in group])), 2),
                         "decision_ms": round(float(np.median(ms)), 3) if ms else None})  # fmt: skip
     return summary
+
+
+#: The public scoreboard (Atari 100k, Freeway, mean score as published): agents that learn everything from 100 k
+#: interactions, where dynplan's knows the chicken's rule and learns only the world from recorded episodes.
+SCOREBOARD = {"random": 0.0, "human": 29.6, "SimPLe": 16.7, "TWM": 24.3, "IRIS": 31.1, "DreamerV3": 0.0,
+              "STORM": 33.5, "DIAMOND": 33.3, "MuZero": 21.8, "EfficientZero": 21.8, "BBF": 25.5}  # fmt: skip
+#: The command that plays the committed Freeway evaluation.
+EVALUATION_COMMAND = "python -m flows.evaluate --world freeway --modes 0 4 --episodes 20 --seed 0 --horizon 8"
+
+
+def results_section(results: str | os.PathLike, run: str = "evaluation") -> list[str]:
+    """The results page's Freeway section from the run's result files (none if the run is not there)."""
+    if not Path(results, run).is_dir():
+        return []
+    rows = summarise(read_run(results, run))
+    lines = ["## Atari Freeway", "",
+             f"`{EVALUATION_COMMAND}` (docs/worlds.md): each technique plays the real game (the emulator's score) on "
+             "NOOP starts drawn from the seed; score mean ± std over the episodes, knocks (a car hitting the chicken) "
+             "an episode, and the search's median milliseconds a decision (2-core CPU).", "",
+             "| mode | technique | k | episodes | score | knocks | decision ms |",
+             "| --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    for row in rows:
+        ms = "" if row["decision_ms"] is None else f"{row['decision_ms']:g}"
+        lines.append(f"| {row['mode']} | {row['technique']} | {row['horizon']} | {row['episodes']} | "
+                     f"{row['score']:g} ± {row['std']:g} | {row['knocks']:g} | {ms} |")  # fmt: skip
+    board = " · ".join(f"{name} {score:g}" for name, score in SCOREBOARD.items())
+    return [*lines, "", f"The public scoreboard (Atari 100k, mean score): {board}. Those agents learn everything from "
+            "100 k interactions; dynplan's knows the chicken's rule and learns only the world.", ""]  # fmt: skip

@@ -20,6 +20,7 @@ import re
 from pathlib import Path
 
 from dynplan.cli import CommandParser, InputError, run_command
+from dynplan.evaluation import freeway
 from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs, shown
 from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, table_files
 from dynplan.files import write_bytes_atomic
@@ -243,6 +244,7 @@ def results_page(results: Path, docs: Path, rows: list[dict] | None = None) -> s
     lines += prediction_section(results, docs)
     lines += figure1_section(results, docs)
     lines += deaths_section(results)
+    lines += freeway.results_section(results / "freeway")
     return "\n".join(lines).rstrip("\n") + "\n"
 
 

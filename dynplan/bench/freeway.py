@@ -1,0 +1,66 @@
+"""`freeway`: milliseconds per Freeway decision (the chicken's exact search) on one core, k = 8 and k = 16.
+
+Decisions at every 4th step of one game (mode 0, NOOP start 0) with the true future, the chicken as the game has it
+there (played by the search itself); against the 100 ms target of a learned decision (search and prediction) and
+the naive search in the same run: the same rule over every action sequence, without merging those that coincide.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from dynplan.bench.timing import pin_to_one_core
+from dynplan.env.freeway import Chicken, FreewayEpisode, FreewayGame, chicken_frames, record_mode, step_frames
+from dynplan.planning.chicken import STUN_PENALTY, ChickenSearch, plan_chicken
+
+TARGET_MS = 100.0
+#: Decisions the naive search is timed on (3^k sequences: k = 8 only).
+NAIVE_DECISIONS = 20
+
+
+def naive_action(chicken: Chicken, frames: np.ndarray, k: int) -> int:
+    """The first action of the plan crossing most, then ending highest, over all 3^k sequences (no merging)."""
+    drawn = [step_frames(frames[d], frames[d + 1]) for d in range(k)]
+
+    def best(state: Chicken, depth: int) -> tuple[float, int]:
+        if depth == k:
+            return 0.0, state.y - (STUN_PENALTY if state.knocked else 0)
+        values = []
+        for action in (1, 0, 2):
+            after, gained = chicken_frames(state, action, drawn[depth])
+            reward, height = best(after, depth + 1)
+            values.append((reward + gained, height))
+        return max(values)
+
+    values = [best(chicken_frames(chicken, a, drawn[0])[0], 1) for a in (1, 0, 2)]
+    return (1, 0, 2)[int(np.argmax([v[0] * 1000 + v[1] for v in values]))]
+
+
+def bench_freeway() -> dict[str, dict[str, float]]:
+    """Time the search along one game at k = 8 and 16, and the naive search on the first decisions at k = 8."""
+    pin_to_one_core()
+    future = record_mode(0).frames
+    results = {}
+    for k in (8, 16):
+        game, times, states = FreewayGame(FreewayEpisode()), [], []
+        for t in range(len(future) - 1):
+            frames = future[t : t + k + 1]
+            decision = plan_chicken(game.chicken, frames, ChickenSearch(horizon=k))
+            if t % 4 == 0:
+                times.append(decision.search_ms)
+                states.append(decision.states)
+            if game.step(decision.action).done:
+                break
+        results[f"search_k{k}"] = {"median_ms": round(float(np.median(times)), 3), "decisions": len(times),
+                                   "median_states": int(np.median(states)), "target_ms": TARGET_MS}  # fmt: skip
+    naive = []
+    for t in range(0, 4 * NAIVE_DECISIONS, 4):
+        start = time.perf_counter()
+        naive_action(Chicken(6), future[t : t + 9], 8)
+        naive.append((time.perf_counter() - start) * 1e3)
+    median = float(np.median(naive))
+    speedup = round(median / results["search_k8"]["median_ms"], 1)
+    results["naive_k8"] = {"median_ms": round(median, 3), "decisions": len(naive), "search_speedup": speedup}
+    return results
