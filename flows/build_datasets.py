@@ -4,7 +4,8 @@ Logs are inspected one Prefect task each and copied with dask; logs already in t
 skipped, so rerunning after new logs arrive appends only those, after checking the episodes already in (and
 repairing any damaged one from its log). Damaged logs are reported and skipped.
 
-A store holds the episodes of one world (`--world`, default road); a log of another world is refused.
+A store holds the episodes of one world (`--world`; default the store's, else road); a log of another world is
+refused.
 
 `python -m flows.build_datasets --verify STORE.zarr [LOG_DIR]` re-reads every chunk of the store, names each
 damaged one with its episodes and, given the logs, repairs them; exit status 1 if damage remains.
@@ -24,7 +25,7 @@ from prefect.futures import as_completed
 
 from dynplan.cli import CommandParser, add_debug_option
 from dynplan.data.build import build_frame_store
-from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem
+from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem, store_world
 from dynplan.data.verify import verify_store
 from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.paths import PathArgument, PathKind, check_output
@@ -86,8 +87,8 @@ def main(argv: list[str] | None = None) -> dict:
                         help="Zarr store to create or extend")  # fmt: skip
     parser.add_argument("--verify", metavar="STORE", type=PathArgument(PathKind.STORE),
                         help="check every chunk of STORE (and repair it from LOG_DIR)")  # fmt: skip
-    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
-                        help=f"the world whose logs the store holds (default {DEFAULT_WORLD})")  # fmt: skip
+    parser.add_argument("--world", choices=list(WORLDS), default=None,
+                        help=f"the world of the store's logs (default: the store's, else {DEFAULT_WORLD})")  # fmt: skip
     add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     add_debug_option(parser)
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> dict:
     for name in not_logs:
         print(f"python -m flows.build_datasets: skipped {Path(args.log_dir) / name}: not a file", file=sys.stderr)
     report = build_datasets.with_options(task_runner=task_runner(address))(
-        log_dir=args.log_dir, out=args.out, dask_address=address, world_name=args.world
+        log_dir=args.log_dir, out=args.out, dask_address=address, world_name=args.world or _store_world(args.out)
     )
     if args.json:
         print(json.dumps(report))
@@ -126,6 +127,12 @@ def main(argv: list[str] | None = None) -> dict:
               "store", file=sys.stderr)  # fmt: skip
         raise SystemExit(1)
     return report
+
+
+def _store_world(store: str) -> str:
+    """The world of the frames store at `store` (the road where there is none yet, or it names none)."""
+    meta = Path(store, "zarr.json")
+    return store_world(json.loads(meta.read_text()).get("attributes", {})) if meta.is_file() else DEFAULT_WORLD
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int =
     """Record episodes seed … seed+episodes−1 of the world `world_name` under `config` into `out`."""
     plan, entry = CollectPlan(episodes=episodes, seed=seed), world(world_name)
     recording = entry.config(config) if config else entry.recording
-    for seed_ in (plan.seeds[0], plan.seeds[-1]):
+    for seed_ in (seed, seed + episodes - 1):
         entry.check_seed(seed_)
     for leftover in stale_temporaries(out):
         leftover.unlink(missing_ok=True)
@@ -73,7 +73,7 @@ def main(argv: list[str] | None = None) -> dict:
     try:
         config = _recording(args)
         plan = CollectPlan(episodes=args.episodes, seed=args.seed)
-        world(args.world).check_seed(plan.seeds[-1], "--seed + --episodes − 1")
+        world(args.world).check_seed(plan.seed + plan.episodes - 1, "--seed + --episodes − 1")
         check_output(args.out, "--out", "folder")
         address = checked_dask_address(args.dask_address)
     except ValueError as error:

@@ -218,6 +218,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
         return evaluate_freeway.main(argv)
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.world != DEFAULT_WORLD:  # an abbreviated --world reaches here: spell it out to dispatch
+        parser.error(f"--world {args.world}: give it as --world {args.world} (in full) for its own options")
     try:
         check_run_name(args.run)
     except StoreError as error:

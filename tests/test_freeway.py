@@ -129,9 +129,9 @@ def test_the_steps_frames_follow_each_lanes_cars():
     """`lane_shifts` finds each lane's move between two world frames (mode 1: up to 8 columns a step), and
     `step_frames` draws the cars part of the way: in the emulator's own frames within the step, every lane's cars
     stand within a column of where it draws them, and exactly there in most."""
-    from dynplan.env.freeway import _emulator, lane_frame, lane_shifts, step_frames
+    from dynplan.env.freeway import emulator, lane_frame, lane_shifts, step_frames
 
-    ale, frames = _emulator(1), []
+    ale, frames = emulator(1), []
     for _ in range(4 * 60):
         frames.append(lane_frame(ale.getScreen()))
         ale.act(0)

@@ -137,3 +137,25 @@ def test_the_commands_take_the_world(tmp_path):
     built = command("flows.build_datasets", str(logs), "--world", "freeway", "--out", str(tmp_path / "fw.zarr"))
     assert built.returncode == 0, built.stderr
     assert zarr.open_group(str(tmp_path / "fw.zarr"), mode="r").attrs["episodes"] == 2
+
+
+def test_a_freeway_log_with_a_goal_topic_or_a_mode_past_7_is_refused(tmp_path, mode_1):
+    from dynplan.env.road import World
+
+    goal = np.zeros((len(mode_1.frames), 2))
+    path = write_episode_log(tmp_path / "goal.mcap", World(mode_1.config, 1, mode_1.frames, goal, mode_1.agent_start))
+    with pytest.raises(LogError, match="has a /world/goal topic, but the freeway world has no goal"):
+        read_episode_log(path)
+    beyond = write_episode_log(tmp_path / "mode9.mcap", freeway.FreewayWorld(mode_1.config, 9, mode_1.frames))
+    with pytest.raises(LogError, match=r"bad 'dynplan' metadata: seed=9 is invalid for the freeway world; valid range"):
+        read_episode_log(beyond)
+    with pytest.raises(ConfigError, match="a FreewayEpisode is no world's config; the worlds' are RoadConfig, Freeway"):
+        world_of(FreewayEpisode())
+
+
+def test_an_abbreviated_world_is_not_taken_for_the_road():
+    from flows.evaluate import main
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["--worl", "freeway", "--techniques", "oracle"])
+    assert exit_.value.code == 2

@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from dynplan.cli import InputError
 from dynplan.config import ConfigError
 from dynplan.env.freeway import BOTTOM_Y, ROAD_VALUES, Chicken, FreewayEpisode, chicken_step
 from dynplan.evaluation import freeway as evaluation
@@ -59,10 +60,13 @@ def test_an_evaluation_resumes_from_its_result_files(tmp_path, monkeypatch):
     plan, search = FreewayPlan(mode=0, episodes=2, seed=0), ChickenSearch(horizon=4)
     played = evaluate_episode(tmp_path, "run", "up", plan, 1, search)
     assert played.episode == 1 and played.noop_start == plan.episode_list()[1].noop_start and played.score >= 20
+    other_seed = evaluate_episode(tmp_path, "run", "up", FreewayPlan(mode=0, episodes=2, seed=5), 1, search)
+    assert other_seed.noop_start == FreewayPlan(mode=0, episodes=2, seed=5).episode_list()[1].noop_start
     monkeypatch.setattr(evaluation, "play_episode", lambda *a, **k: pytest.fail("an episode the run holds is replayed"))
     assert evaluate_episode(tmp_path, "run", "up", plan, 1, search) == played
-    (tmp_path / "run" / "mode0" / "zero-k4-e000.json").write_text("{not json")
-    with pytest.raises(ValueError, match="zero-k4-e000.json: not a Freeway result .* delete it"):
+    assert (tmp_path / "run" / "mode0-seed0" / "up-k4-e001.json").is_file()
+    (tmp_path / "run" / "mode0-seed0" / "zero-k4-e000.json").write_text("{not json")
+    with pytest.raises(InputError, match="zero-k4-e000.json: not a Freeway result .* delete it"):
         read_run(tmp_path, "run")
 
 

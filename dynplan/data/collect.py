@@ -58,7 +58,7 @@ def record_episode(out_dir: str | os.PathLike, seed: int, config: Config | dict 
     config of the world `world_name` given as a dict, or its recording default): a log already there is kept
     ("skipped") only if it is what the seed records, and rewritten otherwise."""
     entry = world_of(config) if isinstance(config, Config) else world(world_name)
-    config = config if isinstance(config, Config) else entry.config(config) if config else entry.recording
+    config = config if isinstance(config, Config) else entry.recording if config is None else entry.config(config)
     n_frames = config.max_steps if n_frames is None else n_frames
     path = log_path(out_dir, entry.check_seed(seed))
     episode = entry.record(config, seed, n_frames)

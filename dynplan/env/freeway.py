@@ -71,7 +71,8 @@ BOTTOM_Y, TOP_Y = 6, 177
 HIT_TIMER, SLIDE_END, STUN_END, WAIT_TIMER, WAIT_END = 91, 80, 64, 142, 128
 #: How far a lane's cars may move in one step, in columns (the fastest mode's 8, and a margin).
 MAX_SHIFT = 10
-#: The lanes of a lane frame: lane i (from the bottom) is rows 16 i … 16 i + 15, its cars on rows 16 i + 1 … 16 i + 8.
+#: The lanes of a lane frame: lane i (from the bottom) is rows 16 i … 16 i + 15, its cars' bodies on rows 16 i + 1 …
+#: 16 i + 8 (their tyres reach a row further either side).
 LANES, LANE_PITCH = 10, 16
 CAR_ROWS = np.arange(LANES)[:, None] * LANE_PITCH + 1 + np.arange(8)
 _NO_CAR = np.zeros(256, bool)
@@ -116,7 +117,7 @@ class FreewayGame:
 
     def __init__(self, episode: FreewayEpisode | None = None) -> None:
         self.episode = episode = episode or FreewayEpisode()
-        self.real, self.shadow = _emulator(episode.mode), _emulator(episode.mode)
+        self.real, self.shadow = emulator(episode.mode), emulator(episode.mode)
         self._actions = self.real.getMinimalActionSet()
         for _ in range(episode.noop_start):
             self._advance(0)
@@ -194,9 +195,11 @@ def record_mode(mode: int, n_frames: int | None = None) -> FreewayWorld:
     """The world of game `mode` from the game's start: the NOOP shadow's lanes at each of its first `n_frames`
     steps (default the whole game, 2,049 frames)."""
     n_frames = GAME_STEPS + 1 if n_frames is None else n_frames
-    if mode not in MODES or not 1 <= n_frames <= GAME_STEPS + 1:
-        raise ValueError(f"mode {mode} and n_frames {n_frames}: valid ranges [0, 7] and [1, {GAME_STEPS + 1}]")
-    ale = _emulator(mode)
+    if mode not in MODES:
+        raise ValueError(f"mode={mode} is invalid; valid range [0, {len(MODES) - 1}]")
+    if not 1 <= n_frames <= GAME_STEPS + 1:
+        raise ValueError(f"n_frames={n_frames} is invalid; valid range [1, {GAME_STEPS + 1}] (the game's frames)")
+    ale = emulator(mode)
     frames = np.empty((n_frames, *lane_frame(ale.getScreen()).shape), np.uint8)
     frames[0] = lane_frame(ale.getScreen())
     noop = ale.getMinimalActionSet()[0]
@@ -255,7 +258,9 @@ def _sprites() -> np.ndarray:
 
 def lane_shifts(before: np.ndarray, after: np.ndarray) -> np.ndarray:
     """(10,) how many columns each lane's cars moved from lane frame `before` to `after` (positive: right): the shift
-    in [−10, 10] under which the most car columns of `before` meet those of `after`, the smallest on a tie."""
+    in [−10, 10] under which the most car columns of `before` meet those of `after`, the smallest on a tie. Columns
+    wrap around the frame's 152 (the game's 160 less its 8 hidden ones), which misplaces only cars at the frame's
+    edges, far from the chicken's columns."""
 
     def columns(frame: np.ndarray) -> np.ndarray:  # (10, W): where lane i's cars are
         return (~_NO_CAR[frame[CAR_ROWS]]).any(axis=1)
@@ -278,7 +283,7 @@ def step_frames(before: np.ndarray, after: np.ndarray) -> np.ndarray:
     return drawn
 
 
-def _emulator(mode: int):
+def emulator(mode: int):
     """An ALE emulator of Freeway in `mode`, deterministic (no sticky actions), one emulator frame per act."""
     ale_py = require("ale_py", "atari", "Atari Freeway")
     ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Error)  # before the first emulator: no banner

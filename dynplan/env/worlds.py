@@ -124,5 +124,9 @@ def world(name: str) -> WorldEntry:
 
 
 def world_of(config: Config) -> WorldEntry:
-    """The world whose config `config` is."""
-    return next(entry for entry in WORLDS.values() if isinstance(config, entry.config_type))
+    """The world whose config `config` is; a ConfigError naming the worlds' configs otherwise."""
+    for entry in WORLDS.values():
+        if isinstance(config, entry.config_type):
+            return entry
+    kinds = ", ".join(entry.config_type.__name__ for entry in WORLDS.values())
+    raise ConfigError(f"a {type(config).__name__} is no world's config; the worlds' are {kinds}")

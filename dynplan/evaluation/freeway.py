@@ -3,7 +3,7 @@
 An episode is a game mode and a NOOP start (drawn from a seed); the chicken is read from the game's RAM and the
 world through the NOOP shadow. Techniques: `oracle` plans with the true future (the mode's recording from the
 episode's start on), `zero` with lanes that hold no car after the frame now, `up` always plays UP and `random`
-draws each action uniformly. One result file per episode (`RESULTS/RUN/mode<m>/<technique>-k<k>-e<i>.json`,
+draws each action uniformly. One result file per episode (`RESULTS/RUN/mode<m>-seed<s>/<technique>-k<k>-e<i>.json`,
 written atomically), so an interrupted evaluation resumes per episode.
 """
 
@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 
+from dynplan.cli import InputError
 from dynplan.config import Config
 from dynplan.env.freeway import ROAD_VALUES, FreewayEpisode, FreewayGame, record_mode
 from dynplan.files import write_bytes_atomic
@@ -85,15 +86,16 @@ def play_episode(technique: str, episode: FreewayEpisode, search: ChickenSearch,
                                  median)  # fmt: skip
 
 
-def result_path(results: str | os.PathLike, run: str, technique: str, mode: int, horizon: int, index: int) -> Path:
-    """Where the result of episode `index` of a technique at a horizon lives in a run."""
-    return Path(results, run, f"mode{mode}", f"{technique}-k{horizon}-e{index:03d}.json")
+def result_path(results: str | os.PathLike, run: str, technique: str, plan: FreewayPlan, horizon: int,
+                index: int) -> Path:  # fmt: skip
+    """Where the result of episode `index` of `plan` played by a technique at a horizon lives in a run."""
+    return Path(results, run, f"mode{plan.mode}-seed{plan.seed}", f"{technique}-k{horizon}-e{index:03d}.json")
 
 
 def evaluate_episode(results: str | os.PathLike, run: str, technique: str, plan: FreewayPlan, index: int,
                      search: ChickenSearch) -> FreewayResult:  # fmt: skip
     """Episode `index` of `plan` played by `technique` and written to the run, unless the run already holds it."""
-    path = result_path(results, run, technique, plan.mode, search.horizon, index)
+    path = result_path(results, run, technique, plan, search.horizon, index)
     if path.is_file():
         return read_result(path)
     episode = plan.episode_list()[index]
@@ -104,11 +106,11 @@ def evaluate_episode(results: str | os.PathLike, run: str, technique: str, plan:
 
 
 def read_result(path: str | os.PathLike) -> FreewayResult:
-    """One episode's result file; a ValueError naming the file if it is not one."""
+    """One episode's result file; an InputError naming the file if it is not one."""
     try:
         return FreewayResult(**json.loads(Path(path).read_text()))
     except (OSError, ValueError, TypeError) as error:
-        raise ValueError(f"{path}: not a Freeway result ({error}); delete it to play the episode again") from None
+        raise InputError(f"{path}: not a Freeway result ({error}); delete it to play the episode again") from None
 
 
 def read_run(results: str | os.PathLike, run: str) -> list[FreewayResult]:
@@ -149,7 +151,8 @@ def results_section(results: str | os.PathLike, run: str = "evaluation") -> list
     lines = ["## Atari Freeway", "",
              f"`{EVALUATION_COMMAND}` (docs/worlds.md): each technique plays the real game (the emulator's score) on "
              "NOOP starts drawn from the seed; score mean ± std over the episodes, knocks (a car hitting the chicken) "
-             "an episode, and the search's median milliseconds a decision (2-core CPU).", "",
+             "an episode, and the search's median milliseconds a decision (one mode a process, two processes on a "
+             "2-core CPU).", "",
              "| mode | technique | k | episodes | score | knocks | decision ms |",
              "| --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for row in rows:

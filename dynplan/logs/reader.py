@@ -206,7 +206,7 @@ def read_episode_log(path: str | os.PathLike) -> EpisodeLog:
     try:
         entry = world(meta.get("world", DEFAULT_WORLD))
         config = entry.config(json.loads(meta["config"]))
-        seed, n_frames = int(meta["seed"]), int(meta["n_frames"])
+        seed, n_frames = entry.check_seed(int(meta["seed"])), int(meta["n_frames"])
         height, width = int(meta["height"]), int(meta["width"])
         agent_start = np.array(json.loads(meta["agent_start"]), dtype=np.float64)
     except (KeyError, ValueError, TypeError, ConfigError) as error:
@@ -228,6 +228,8 @@ def _world_topics(scan: _Scan, entry: WorldEntry, config: Config, n_frames: int)
     world's pixel values."""
     path, height, width = scan.listing.path, config.height, config.width
     images = _decode(scan, TOPIC_FRAME, SCHEMA_FRAME)
+    if not entry.has_goal and TOPIC_GOAL in scan.listing.topics:
+        raise LogError(path, f"has a {TOPIC_GOAL} topic, but the {entry.name} world has no goal")
     goals = _decode(scan, TOPIC_GOAL, SCHEMA_POSE) if entry.has_goal else images
     for topic in (TOPIC_FRAME, TOPIC_GOAL) if entry.has_goal else (TOPIC_FRAME,):
         problem = _order_problem(scan.messages.get(topic, []))

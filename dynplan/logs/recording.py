@@ -51,7 +51,10 @@ def check_recorded(log: EpisodeLog) -> EpisodeLog:
     if "dynplan_version" not in log.metadata or log.metadata.get("kind") != "world":
         return log  # one's own episode, or a replay (which records a planner, not only a seed)
     entry = log.entry
-    world = entry.record(log.config, log.seed, log.n_frames)
+    try:
+        world = entry.record(log.config, log.seed, log.n_frames)
+    except ValueError as error:
+        raise LogError(log.path, f"is no recording of its world: {error}") from None
     problem = recording_problem(log.path, log, world, fresh_recording(world, log.n_frames, log.path.name))
     if problem:
         option = f" --world {entry.name}" if entry.name != DEFAULT_WORLD else ""
