@@ -51,7 +51,7 @@ from dynplan.models.registry import WORLD_MODELS
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.artifacts import ProgressArtifact, publish_table1
-from flows.cli import run
+from flows.cli import named_world, run
 from flows.collect import collect_episodes
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 
@@ -125,17 +125,6 @@ def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = Non
     publish_table1(table, artifacts or run)
     print(f"\nrun {run!r} ({role}):\n" + render_markdown(rows))
     return rows
-
-
-def _world(argv: list[str]) -> str:
-    """The `--world` an argument list names (`--world W` or `--world=W`; default road)."""
-    world = DEFAULT_WORLD
-    for i, arg in enumerate(argv):
-        if arg == "--world" and i + 1 < len(argv):
-            world = argv[i + 1]
-        elif arg.startswith("--world="):
-            world = arg.split("=", 1)[1]
-    return world
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -212,7 +201,7 @@ def _specs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[C
 
 def main(argv: list[str] | None = None) -> list[dict]:
     argv = sys.argv[1:] if argv is None else argv
-    if _world(argv) == "freeway":
+    if named_world(argv) == "freeway":
         from flows import evaluate_freeway
 
         return evaluate_freeway.main(argv)

@@ -2,12 +2,14 @@
 
 Prints the outcome (goal / timeout / death), the steps and the time per decision; writes a replay MCAP
 (world, the agent's pose, actions and view, the planner's imagined frames) and optionally a GIF.
+`--world freeway` replays a Freeway mode's log instead (`flows.replay_freeway`).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from contextlib import nullcontext
 from pathlib import Path
 
@@ -15,6 +17,7 @@ from prefect import flow
 
 from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
+from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import AGENT_SPEEDS
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
@@ -24,7 +27,7 @@ from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.models.registry import WORLD_MODELS
 from dynplan.paths import PathArgument, PathKind, check_output
-from flows.cli import run
+from flows.cli import named_world, run
 
 
 @flow(name="replay-episode", log_prints=True)
@@ -47,6 +50,8 @@ def replay_episode(log: str, agent: AgentSpec | None = None, agent_speed: float 
 
 def _parser() -> argparse.ArgumentParser:
     parser = CommandParser(prog="python -m flows.replay", description=__doc__)
+    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
+                        help="the world (default road; `--world freeway --help` lists Freeway's options)")  # fmt: skip
     parser.add_argument("log", type=PathArgument(PathKind.LOG), help="episode log (.mcap) from flows.collect")
     parser.add_argument(
         "--planner",
@@ -96,8 +101,15 @@ def _agent(args: argparse.Namespace) -> AgentSpec:
 
 
 def main(argv: list[str] | None = None) -> dict:
+    argv = sys.argv[1:] if argv is None else argv
+    if named_world(argv) == "freeway":
+        from flows import replay_freeway
+
+        return replay_freeway.main(argv)
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.world != DEFAULT_WORLD:  # an abbreviated --world reaches here: spell it out to dispatch
+        parser.error(f"--world {args.world}: give it as --world {args.world} (in full) for its own options")
     try:  # fail fast, with one line, before any flow machinery starts
         agent = _agent(args)
         out = args.out or str(default_outputs(args.log, agent))

@@ -102,3 +102,26 @@ def test_merging_coinciding_plans_changes_no_decision():
         if t % 10 == 0:
             assert decision.action == naive_action(game.chicken, future[t : t + 6], 5), t
         game.step(decision.action)
+
+
+def test_a_replay_log_holds_the_modes_lanes_and_the_chickens_track(tmp_path, prefect_api):
+    """`flows.replay --world freeway` plays the real game from the NOOP start and writes the mode's recording with
+    the chicken's track (entering at frame n), its steps' rewards summing to the game's score, and the lanes the
+    planner searched; a log that is no whole Freeway mode's recording is refused in one line."""
+    from dynplan.data.collect import record_episode
+    from dynplan.logs.reader import read_episode_log
+    from flows.replay import main
+
+    logs = tmp_path / "logs"
+    log = record_episode(logs, 0, None, None, "freeway").path
+    result = main([log, "--world", "freeway", "--noop-start", "4", "--technique", "zero", "--horizon", "2",
+                   "--out", str(tmp_path / "zero.mcap")])  # fmt: skip
+    replay = read_episode_log(tmp_path / "zero.mcap")
+    assert replay.metadata["kind"] == "agent" and replay.n_frames == 2049 and replay.entry.name == "freeway"
+    np.testing.assert_array_equal(replay.agent.t, np.arange(4, 2049))
+    assert replay.agent.reward.sum() == result["score"] >= 20 and replay.agent.outcome[-1] == "timeout"
+    assert sorted(replay.imagined)[0] == 4 and replay.imagined[4].shape == (2, 154, 152)
+    short = record_episode(tmp_path / "short", 1, None, 100, "freeway").path
+    with pytest.raises(SystemExit) as exit_:
+        main([short, "--world", "freeway"])
+    assert exit_.value.code == 2

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -19,7 +20,7 @@ from pydantic import Field
 
 from dynplan.cli import InputError
 from dynplan.config import Config
-from dynplan.env.freeway import ROAD_VALUES, FreewayEpisode, FreewayGame, record_mode
+from dynplan.env.freeway import ROAD_VALUES, Chicken, FreewayEpisode, FreewayGame, FreewayStep, record_mode
 from dynplan.files import write_bytes_atomic
 from dynplan.planning.chicken import ChickenSearch, plan_chicken
 
@@ -60,30 +61,50 @@ class FreewayResult:
         return asdict(self)
 
 
-def play_episode(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0) -> FreewayResult:
-    """Play `episode` of the real game with `technique` to the game's end."""
+@dataclass(frozen=True)
+class Turn:
+    """One step played: the chicken before it, the lanes the planner searched (the frame now and the k it predicted;
+    None for a technique that does not plan), the action, the search's milliseconds (None likewise) and the step."""
+
+    chicken: Chicken
+    frames: np.ndarray | None
+    action: int
+    search_ms: float | None
+    step: FreewayStep
+
+
+def play_turns(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0) -> Iterator[Turn]:
+    """Play `episode` of the real game with `technique`, one turn at a time, to the game's end."""
     if technique not in TECHNIQUES:
         raise ValueError(f"technique {technique!r} is not one of {', '.join(TECHNIQUES)}")
     future = record_mode(episode.mode).frames[episode.noop_start :] if technique == "oracle" else None
     game, rng = FreewayGame(episode), np.random.default_rng(seed)
-    frame, t, score, knocks, ms = game.world_frame(), 0, 0.0, 0, []
+    frame, t = game.world_frame(), 0
     road = np.full((search.horizon, *frame.shape), ROAD_VALUES[0], np.uint8)
     while True:
-        chicken = game.chicken
+        chicken, frames, ms = game.chicken, None, None
         if technique in PLANNERS:
             frames = future[t : t + search.horizon + 1] if future is not None else np.concatenate([frame[None], road])
             decision = plan_chicken(chicken, frames, search)
-            action = decision.action
-            ms.append(decision.search_ms)
+            action, ms = decision.action, decision.search_ms
         else:
             action = 1 if technique == "up" else int(rng.integers(0, 3))
         step = game.step(action)
-        knocks += chicken.timer == 0 and step.chicken.knocked
-        score, t, frame = score + step.reward, t + 1, step.frame
+        yield Turn(chicken, frames, action, ms, step)
         if step.done:
-            median = round(float(np.median(ms)), 3) if ms else None
-            return FreewayResult(technique, episode.mode, episode.noop_start, -1, search.horizon, score, knocks, t,
-                                 median)  # fmt: skip
+            return
+        t, frame = t + 1, step.frame
+
+
+def play_episode(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0) -> FreewayResult:
+    """Play `episode` of the real game with `technique` to the game's end: its score, knocks, steps, decision ms."""
+    score, knocks, steps, ms = 0.0, 0, 0, []
+    for turn in play_turns(technique, episode, search, seed):
+        score, steps = score + turn.step.reward, steps + 1
+        knocks += turn.chicken.timer == 0 and turn.step.chicken.knocked
+        ms += [] if turn.search_ms is None else [turn.search_ms]
+    median = round(float(np.median(ms)), 3) if ms else None
+    return FreewayResult(technique, episode.mode, episode.noop_start, -1, search.horizon, score, knocks, steps, median)
 
 
 def result_path(results: str | os.PathLike, run: str, technique: str, plan: FreewayPlan, horizon: int,

@@ -135,7 +135,8 @@ def write_episode_log(path: str | os.PathLike, world: Recording, agent: AgentTra
             annotation_channel = writer.register_channel(TOPIC_ANNOTATIONS, "protobuf", annotation_schema)
             for i, t in enumerate(agent.t):
                 t, time = int(t), log_time(int(t))
-                marks = annotations(t, agent.position[i], world.goal[t], world.config.height, decisions.get(t))
+                goal = None if world.goal is None else world.goal[t]
+                marks = annotations(t, agent.position[i], goal, world.config.height, decisions.get(t))
                 writer.add_message(annotation_channel, time, marks.SerializeToString(), time, i)
         if search:
             search_json = json.dumps(SEARCH_JSON_SCHEMA).encode()
@@ -185,7 +186,8 @@ def _block(lower_left: np.ndarray, height: int, colour: Color, t: int) -> Points
                             points=[Point2(x=a, y=b) for a, b in corners])  # fmt: skip
 
 
-def annotations(t: int, agent: np.ndarray, goal: np.ndarray, height: int, decision: dict | None) -> ImageAnnotations:
+def annotations(t: int, agent: np.ndarray, goal: np.ndarray | None, height: int,
+                decision: dict | None) -> ImageAnnotations:  # fmt: skip
     """What a viewer draws over /world/frame at frame `t`: the agent (a circle), the true goal block, and for a
     decision the predicted goal at t + 1 and the chosen action (an arrow and its heading in degrees)."""
     from dynplan.env.agent import ACTION_ANGLES_DEG
@@ -193,7 +195,7 @@ def annotations(t: int, agent: np.ndarray, goal: np.ndarray, height: int, decisi
     centre = _point(agent[0], agent[1], height)
     marks = ImageAnnotations(circles=[CircleAnnotation(timestamp=_stamp(t), position=centre, diameter=3.0,
                                                        thickness=1.0, outline_color=AGENT_COLOUR)],
-                             points=[_block(goal, height, GOAL_COLOUR, t)])  # fmt: skip
+                             points=[] if goal is None else [_block(goal, height, GOAL_COLOUR, t)])  # fmt: skip
     if decision is not None:
         if decision.get("goal") is not None:  # a block's centre is its lower-left pixel + 0.5
             aimed = np.array([decision["goal"]["y"], decision["goal"]["x"]]) - 0.5

@@ -1,0 +1,71 @@
+"""A Freeway episode replayed into a log Foxglove shows: the mode's recorded lanes, the chicken entering at its NOOP
+start, its pose, actions, rewards and view at each step, and the lanes the planner searched at each decision.
+
+The replay log holds the mode's whole recording (`/world/frame` from the game's start) so that its world is the
+recorded log's; the chicken's track starts at frame n, the episode's NOOP start. Its pose is the middle of the
+chicken's sprite (`chicken_row`, `CHICKEN_COLUMN`: below row 0 on the bottom sidewalk); a step's reward is 1 at a
+crossing, and the last step's outcome is "timeout" (the game's end).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from dynplan.env.freeway import CHICKEN_COLUMN, Chicken, FreewayEpisode, chicken_row
+from dynplan.evaluation.freeway import FreewayResult, Turn, play_turns
+from dynplan.logs.format import AgentTrack
+from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
+from dynplan.logs.recording import check_recorded
+from dynplan.logs.writer import write_episode_log
+from dynplan.planning.chicken import ChickenSearch
+
+
+def replayable(log: str | os.PathLike) -> EpisodeLog:
+    """`log`, read and checked: a whole Freeway mode's recording, as `flows.collect` writes it; else a LogError."""
+    recorded = check_recorded(read_episode_log(log))
+    if recorded.entry.name != "freeway" or recorded.metadata.get("kind") != "world":
+        raise LogError(log, f"is a {recorded.entry.name} log of kind {recorded.metadata.get('kind')!r}; a Freeway "
+                            "replay plays a Freeway mode's recording (flows.collect --world freeway)")  # fmt: skip
+    if recorded.n_frames < recorded.config.max_steps:
+        raise LogError(log, f"holds {recorded.n_frames} frames of the game's {recorded.config.max_steps}; record the "
+                            "whole mode (flows.collect --world freeway without a frame limit)")  # fmt: skip
+    return recorded
+
+
+def default_replay_path(log: str | os.PathLike, technique: str, noop_start: int) -> Path:
+    """Where a replay of `log` goes by default: beside the log's folder, in `replays/`."""
+    log = Path(log)
+    return log.parent.parent / "replays" / f"{log.stem}.replay-{technique}-noop{noop_start}.mcap"
+
+
+def chicken_position(chicken: Chicken) -> np.ndarray:
+    """The chicken's (row, column) in the lane frame."""
+    return np.array([chicken_row(chicken.y), CHICKEN_COLUMN])
+
+
+def track(turns: list[Turn], noop_start: int) -> AgentTrack:
+    """The chicken's track through the turns, the first pose at frame `noop_start`."""
+    chickens = [turns[0].chicken] + [turn.step.chicken for turn in turns]
+    outcomes = ("running",) * (len(turns) - 1) + ("timeout",)
+    positions = np.stack([chicken_position(c) for c in chickens])
+    return AgentTrack(t=noop_start + np.arange(len(chickens)), position=positions,
+                      action=np.array([turn.action for turn in turns]),
+                      reward=np.array([turn.step.reward for turn in turns]), outcome=outcomes)  # fmt: skip
+
+
+def replay_freeway(log: str | os.PathLike, technique: str, noop_start: int, search: ChickenSearch,
+                   out: str | os.PathLike) -> FreewayResult:  # fmt: skip
+    """Play the episode of `log`'s mode with NOOP start `noop_start` by `technique` and write its replay to `out`."""
+    recorded = replayable(log)
+    episode = FreewayEpisode(mode=recorded.seed, noop_start=noop_start)
+    turns = list(play_turns(technique, episode, search))
+    imagined = {noop_start + i: turn.frames[1:] for i, turn in enumerate(turns) if turn.frames is not None}
+    write_episode_log(out, recorded.world(), agent=track(turns, noop_start), imagined=imagined or None)
+    knocks = sum(turn.chicken.timer == 0 and turn.step.chicken.knocked for turn in turns)
+    ms = [turn.search_ms for turn in turns if turn.search_ms is not None]
+    return FreewayResult(technique, episode.mode, noop_start, 0, search.horizon,
+                         float(sum(turn.step.reward for turn in turns)), int(knocks), len(turns),
+                         round(float(np.median(ms)), 3) if ms else None)  # fmt: skip
