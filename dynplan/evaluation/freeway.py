@@ -165,21 +165,25 @@ EVALUATION_COMMAND = "python -m flows.evaluate --world freeway --modes 0 4 --epi
 
 
 def results_section(results: str | os.PathLike, run: str = "evaluation") -> list[str]:
-    """The results page's Freeway section from the run's result files (none if the run is not there)."""
+    """The results page's Freeway section from the run's result files (none if the run is not there): a row per
+    technique and horizon, a column per mode."""
     if not Path(results, run).is_dir():
         return []
     rows = summarise(read_run(results, run))
-    lines = ["## Atari Freeway", "",
-             f"`{EVALUATION_COMMAND}` (docs/worlds.md): each technique plays the real game (the emulator's score) on "
-             "NOOP starts drawn from the seed; score mean ± std over the episodes, knocks (a car hitting the chicken) "
-             "an episode, and the search's median milliseconds a decision (one mode a process, two processes on a "
-             "2-core CPU).", "",
-             "| mode | technique | k | episodes | score | knocks | decision ms |",
-             "| --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
+    modes = sorted({row["mode"] for row in rows})
+    cells: dict[tuple[str, int], dict[int, dict]] = {}
     for row in rows:
-        ms = "" if row["decision_ms"] is None else f"{row['decision_ms']:g}"
-        lines.append(f"| {row['mode']} | {row['technique']} | {row['horizon']} | {row['episodes']} | "
-                     f"{row['score']:g} ± {row['std']:g} | {row['knocks']:g} | {ms} |")  # fmt: skip
+        cells.setdefault((row["technique"], row["horizon"]), {})[row["mode"]] = row
+    header = " | ".join(f"mode {m}" for m in modes)
+    lines = ["## Atari Freeway", "",
+             f"`{EVALUATION_COMMAND}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
+             "starts drawn from the seed), and knocks an episode; the search's median ms a decision (two processes, "
+             "2 cores).", "", f"| technique | {header} | ms |", f"|{' --- |' * (len(modes) + 2)}"]  # fmt: skip
+    for (technique, horizon), by_mode in cells.items():
+        shown = [f"{r['score']:g} ± {r['std']:g}, {r['knocks']:g}" if (r := by_mode.get(m)) else "" for m in modes]
+        ms = " / ".join(f"{r['decision_ms']:g}" for r in by_mode.values() if r["decision_ms"] is not None)
+        name = f"{technique} k = {horizon}" if technique in PLANNERS else technique
+        lines.append(f"| {name} | {' | '.join(shown)} | {ms} |")
     board = " · ".join(f"{name} {score:g}" for name, score in SCOREBOARD.items())
-    return [*lines, "", f"The public scoreboard (Atari 100k, mean score): {board}. Those agents learn everything from "
-            "100 k interactions; dynplan's knows the chicken's rule and learns only the world.", ""]  # fmt: skip
+    return [*lines, "", f"Atari 100k scoreboard: {board}; those agents learn everything from 100 k interactions, "
+            "dynplan's knows the chicken's rule.", ""]  # fmt: skip
