@@ -125,3 +125,17 @@ def test_a_replay_log_holds_the_modes_lanes_and_the_chickens_track(tmp_path, pre
     with pytest.raises(SystemExit) as exit_:
         main([short, "--world", "freeway"])
     assert exit_.value.code == 2
+
+
+def test_the_lab_predictor_moves_each_lane_at_its_mean_speed():
+    """`dynplan.analysis.freeway_predictors.shifted`: a car that moved 5 columns over 4 steps is imagined 1.25
+    columns a step further on, rounded, and an empty lane stays empty."""
+    from dynplan.analysis.freeway_predictors import shifted
+
+    observed = np.full((5, 154, 152), ROAD_VALUES[0], np.uint8)
+    for step, column in enumerate((40, 41, 42, 44, 45)):
+        observed[step, 17:25, column : column + 8] = 136  # lane 1's car
+    imagined = shifted(observed, 4)
+    starts = [int(np.flatnonzero(frame[20] == 136)[0]) for frame in imagined]
+    assert starts == [46, 48, 49, 50]  # 45 + 1.25, 2.5, 3.75, 5 rounded half up
+    assert (imagined[:, 0:16] == ROAD_VALUES[0]).all()
