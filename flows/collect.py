@@ -23,6 +23,9 @@ from dynplan.progress import progress
 from flows.cli import run
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 
+#: Episodes a collection records unless told: 10, or fewer where the world has fewer from the first seed on.
+DEFAULT_EPISODES = 10
+
 
 @task(name="record-episode", cache_policy=NO_CACHE)
 def record_episode_task(out: str, seed: int, config: dict, n_frames: int | None = None,
@@ -53,8 +56,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser = CommandParser(prog="python -m flows.collect", description=__doc__)
     parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
                         help=f"the world to record (default {DEFAULT_WORLD})")  # fmt: skip
-    parser.add_argument("--episodes", type=bounded(CollectPlan, "episodes"), default=10,
-                        help=field_help(CollectPlan, "episodes"))  # fmt: skip
+    parser.add_argument("--episodes", type=bounded(CollectPlan, "episodes"), default=None,
+                        help=field_help(CollectPlan, "episodes", "10, or the world's episodes from --seed on if fewer "
+                                        "(freeway: its 8 modes)"))  # fmt: skip
     parser.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=0, help=field_help(CollectPlan, "seed"))
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/logs",
                         help="folder for the logs (default datasets/logs)")  # fmt: skip
@@ -72,15 +76,18 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     try:
         config = _recording(args)
-        plan = CollectPlan(episodes=args.episodes, seed=args.seed)
-        world(args.world).check_seed(plan.seed + plan.episodes - 1, "--seed + --episodes − 1")
+        entry = world(args.world)
+        entry.check_seed(args.seed, "--seed")
+        episodes = args.episodes or min(DEFAULT_EPISODES, entry.seeds[1] - args.seed + 1)
+        plan = CollectPlan(episodes=episodes, seed=args.seed)
+        entry.check_seed(plan.seed + plan.episodes - 1, "--seed + --episodes − 1")
         check_output(args.out, "--out", "folder")
         address = checked_dask_address(args.dask_address)
     except ValueError as error:
         parser.error(str(error))
     runner = task_runner(address)
     summary = collect_episodes.with_options(task_runner=runner)(
-        out=args.out, episodes=args.episodes, seed=args.seed, config=config, world_name=args.world
+        out=args.out, episodes=plan.episodes, seed=args.seed, config=config, world_name=args.world
     )
     if args.json:
         print(json.dumps(summary))

@@ -123,8 +123,7 @@ def test_the_commands_take_the_world(tmp_path):
     def command(*args: str) -> subprocess.CompletedProcess:
         return subprocess.run([sys.executable, "-m", *args], cwd=ROOT, capture_output=True, text=True, timeout=300)
 
-    done = command("flows.collect", "--world", "freeway", "--seed", "6", "--episodes", "2", "--out", str(logs),
-                   "--json")  # fmt: skip
+    done = command("flows.collect", "--world", "freeway", "--seed", "6", "--out", str(logs), "--json")  # modes 6, 7
     assert done.returncode == 0, done.stderr
     assert json.loads(done.stdout.splitlines()[-1])["written"] == 2
     assert [read_episode_log(p).seed for p in list_logs(logs)] == [6, 7]
