@@ -22,7 +22,8 @@ from prefect.context import TaskRunContext
 from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.data.metadata import metadata_problem
-from dynplan.data.store import store_problem
+from dynplan.data.store import store_problem, store_world
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models import checkpoint
 from dynplan.models.checkpoint import CheckpointError, digest
 from dynplan.models.pixelcnn import PixelCNNConfig
@@ -210,8 +211,12 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
     problem = store_problem(args.store) or metadata_problem(args.store)
     if problem:
         raise ValueError(f"--store {problem}")
+    group = zarr.open_group(args.store, mode="r", use_consolidated=False)
+    if (world := store_world(dict(group.attrs))) != DEFAULT_WORLD:
+        raise ValueError(f"--store {args.store}: holds the {world} world's episodes; the world models train on the "
+                         f"{DEFAULT_WORLD} world's (docs/worlds.md)")  # fmt: skip
     codes = args.codes or f"codes_{args.model}"
-    if args.stage == "pixelcnn" and codes not in zarr.open_group(args.store, mode="r", use_consolidated=False):
+    if args.stage == "pixelcnn" and codes not in group:
         raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
                                 f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
     return overrides, budget
