@@ -17,15 +17,15 @@ import numpy as np
 from dynplan.env.freeway import CHICKEN_COLUMN, Chicken, FreewayEpisode, chicken_row
 from dynplan.evaluation.freeway import FreewayResult, Turn, play_turns
 from dynplan.logs.format import AgentTrack
-from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
-from dynplan.logs.recording import check_recorded
+from dynplan.logs.reader import EpisodeLog, LogError
+from dynplan.logs.recording import read_recorded_log
 from dynplan.logs.writer import write_episode_log
 from dynplan.planning.chicken import ChickenSearch
 
 
 def replayable(log: str | os.PathLike) -> EpisodeLog:
     """`log`, read and checked: a whole Freeway mode's recording, as `flows.collect` writes it; else a LogError."""
-    recorded = check_recorded(read_episode_log(log))
+    recorded = read_recorded_log(log)
     if recorded.entry.name != "freeway" or recorded.metadata.get("kind") != "world":
         raise LogError(log, f"is a {recorded.entry.name} log of kind {recorded.metadata.get('kind')!r}; a Freeway "
                             "replay plays a Freeway mode's recording (flows.collect --world freeway)")  # fmt: skip
