@@ -16,17 +16,20 @@ from prefect import flow
 from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import field_help
 from dynplan.env.freeway import FreewayEpisode
-from dynplan.evaluation.freeway import TECHNIQUES
+from dynplan.evaluation.freeway import TECHNIQUES, world_model_for
 from dynplan.evaluation.freeway_replay import default_replay_path, replay_freeway, replayable
 from dynplan.logs.reader import LogError
+from dynplan.models.checkpoint import CheckpointError
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.planning.chicken import ChickenSearch
 
 
 @flow(name="replay-freeway-episode", log_prints=True)
-def replay_freeway_episode(log: str, technique: str, noop_start: int, horizon: int, out: str) -> dict:
-    """Replay one Freeway episode of `log`'s mode into `out`."""
-    result = replay_freeway(log, technique, noop_start, ChickenSearch(horizon=horizon), out).to_dict()
+def replay_freeway_episode(log: str, technique: str, noop_start: int, horizon: int, out: str,
+                           model_dir: str | None = None) -> dict:  # fmt: skip
+    """Replay one Freeway episode of `log`'s mode into `out` (`model_dir`: a learned technique's world model)."""
+    model = world_model_for(technique, model_dir)
+    result = replay_freeway(log, technique, noop_start, ChickenSearch(horizon=horizon), out, model).to_dict()
     ms = "" if result["decision_ms"] is None else f", {result['decision_ms']:g} ms a decision (median)"
     print(f"score {result['score']:g}, {result['knocks']} knocks in {result['steps']} steps{ms}; replay log: {out}")
     return result
@@ -43,6 +46,9 @@ def parser() -> argparse.ArgumentParser:
     parser.add_argument("--horizon", type=bounded(ChickenSearch, "horizon"), default=8,
                         help=field_help(ChickenSearch, "horizon"))  # fmt: skip
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FILE), help="the replay log to write")
+    parser.add_argument("--model-dir", type=PathArgument(PathKind.MODEL_FOLDER),
+                        help="the learned technique's world model: a folder holding vqvae.pt and pixelcnn.pt "
+                        "(default: the committed Freeway weights)")  # fmt: skip
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     add_debug_option(parser)
     return parser
@@ -55,9 +61,10 @@ def main(argv: list[str] | None = None) -> dict:
     try:
         check_output(out, "--out", "file", inputs=(args.log,))
         replayable(args.log)
-    except (LogError, ValueError) as error:
+        world_model_for(args.technique, args.model_dir)
+    except (LogError, ValueError, CheckpointError) as error:
         commands.error(str(error))
-    result = replay_freeway_episode(args.log, args.technique, args.noop_start, args.horizon, out)
+    result = replay_freeway_episode(args.log, args.technique, args.noop_start, args.horizon, out, args.model_dir)
     if args.json:
         print(json.dumps(result))
     return result

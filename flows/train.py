@@ -27,7 +27,7 @@ from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models import checkpoint
 from dynplan.models.checkpoint import CheckpointError, digest
 from dynplan.models.pixelcnn import PixelCNNConfig
-from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.models.registry import WORLD_MODELS, default_model, models_of, world_model_spec
 from dynplan.models.vqvae import VQVAEConfig
 from dynplan.paths import PathArgument, PathKind, check_input, check_output
 from dynplan.training.codes import build_codes
@@ -167,7 +167,9 @@ def _parser() -> CommandParser:
     parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
     parser.add_argument("--store", type=PathArgument(PathKind.STORE),
                         help=f"frames store from flows.build_datasets (default {STORE})")  # fmt: skip
-    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS), help="world-model configuration")
+    parser.add_argument("--model", choices=list(WORLD_MODELS),
+                        help="world-model configuration (default: the store's world's: default for the road, "
+                        "freeway for Freeway)")  # fmt: skip
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/checkpoints",
                         help="folder for training runs")  # fmt: skip
     for name in ("epochs", "steps_per_epoch", "max_minutes", "threads"):
@@ -212,9 +214,9 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
     if problem:
         raise ValueError(f"--store {problem}")
     group = zarr.open_group(args.store, mode="r", use_consolidated=False)
-    if (world := store_world(dict(group.attrs))) != DEFAULT_WORLD:
-        raise ValueError(f"--store {args.store}: holds the {world} world's episodes; the world models train on the "
-                         f"{DEFAULT_WORLD} world's (docs/worlds.md)")  # fmt: skip
+    if (world := store_world(dict(group.attrs))) != preset.world:
+        raise ValueError(f"--store {args.store}: holds the {world} world's episodes; --model {args.model} models the "
+                         f"{preset.world} world's (the {world} world's: {', '.join(models_of(world))})")  # fmt: skip
     codes = args.codes or f"codes_{args.model}"
     if args.stage == "pixelcnn" and codes not in group:
         raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
@@ -222,10 +224,19 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
     return overrides, budget
 
 
+def _world_of(store: str) -> str:
+    """The world of `store`'s episodes, or the road where it is no readable store (`_checked` says why)."""
+    try:
+        return store_world(dict(zarr.open_group(store, mode="r", use_consolidated=False).attrs))
+    except Exception:
+        return DEFAULT_WORLD
+
+
 def main(argv: list[str] | None = None) -> str:
     parser = _parser()
     args = parser.parse_args(argv)
     args.store = args.store or STORE  # checked with the rest, after the values that need no store
+    args.model = args.model or default_model(_world_of(args.store))
     try:
         overrides, budget = _checked(args)
     except (ConfigError, ValueError, FileNotFoundError, CheckpointError, MissingExtra) as error:

@@ -158,15 +158,3 @@ def test_an_abbreviated_world_is_not_taken_for_the_road():
     with pytest.raises(SystemExit) as exit_:
         main(["--worl", "freeway", "--techniques", "oracle"])
     assert exit_.value.code == 2
-
-
-def test_a_freeway_store_is_refused_by_training_in_one_line(tmp_path):
-    """The world models are the road's: `flows.train` names a Freeway store's world rather than train on it."""
-    from flows.train import main
-
-    logs, store = tmp_path / "logs", tmp_path / "frames.zarr"
-    record_episode(logs, 0, None, 40, "freeway")
-    build_frame_store_from_logs(store, list_logs(logs))
-    with pytest.raises(SystemExit) as exit_:
-        main(["vqvae", "--store", str(store), "--out", str(tmp_path / "runs")])
-    assert exit_.value.code == 2

@@ -314,7 +314,8 @@ def test_predict_batch_names_the_episode_whose_argument_is_bad(tiny_model):
 
 
 def test_load_world_model_names_the_registered_configurations_and_suggests_only_what_works(tmp_path):
-    with pytest.raises(ValueError, match=r"^model must be one of \['default', 'paper'\], got 'nosuch'$") as error:
+    known = r"\['default', 'freeway', 'paper'\]"
+    with pytest.raises(ValueError, match=rf"^model must be one of {known}, got 'nosuch'$") as error:
         load_world_model(model="nosuch")
     assert "flows.train" not in str(error.value)
     for settings, message in [({"samples": 2.5}, "samples must be an integer in [0, 64]; got 2.5"),

@@ -3,7 +3,9 @@ context + 1 target, for the PixelCNN; a longer context repeats frame 0 before th
 `dynplan.data.history` says), split by episode into train and validation.
 
 The split is a pure function of each episode's seed, so it never changes as the store grows and an episode is
-never in both splits. Episodes are read whole (one Zarr chunk) and kept in memory once read.
+never in both splits: a world with few episodes names its validation seeds, and those no model trains on, in its
+entry (`dynplan.env.worlds`); the others' are drawn by a hash of the seed. Episodes are read whole (one Zarr
+chunk) and kept in memory once read.
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ from torch.utils.data import Dataset
 
 from dynplan.data.chunks import read
 from dynplan.data.history import context_indices, first_target
+from dynplan.data.store import store_world
+from dynplan.env.worlds import WorldEntry, world
 
 Split = Literal["train", "validation", "all"]
 #: Frames of context a window gives before its target (docs/protocol.md §2: the PixelCNN conditions on the last 4).
@@ -30,6 +34,14 @@ def is_validation(seeds: np.ndarray, val_fraction: float) -> np.ndarray:
         raise ValueError(f"val_fraction must be in [0, 1), got {val_fraction}")
     hashed = (np.asarray(seeds, dtype=np.uint64) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(11)
     return hashed.astype(np.float64) / 2.0**53 < val_fraction
+
+
+def split_of(entry: WorldEntry, seeds: np.ndarray, val_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which episodes of `entry`'s world, by seed, are validation episodes and which no model trains on."""
+    seeds = np.asarray(seeds)
+    if entry.validation_seeds is None:
+        return is_validation(seeds, val_fraction), np.zeros(len(seeds), bool)
+    return np.isin(seeds, list(entry.validation_seeds)), np.isin(seeds, list(entry.held_out_seeds))
 
 
 class _EpisodeArray(Dataset):
@@ -46,8 +58,9 @@ class _EpisodeArray(Dataset):
         n_episodes = int(group.attrs.get("episodes", 0))  # committed episodes (arrays may run longer)
         n_episodes = min(n_episodes, int(self.array.attrs.get("episodes", n_episodes)))  # e.g. codes not yet built
         self.seeds = read(self.store, group["seed"], slice(0, n_episodes))
-        validation = is_validation(self.seeds[:n_episodes], val_fraction)
-        keep = {"train": ~validation, "validation": validation, "all": np.ones(n_episodes, bool)}[split]
+        validation, held_out = split_of(world(store_world(dict(group.attrs))), self.seeds[:n_episodes], val_fraction)
+        train = ~validation & ~held_out
+        keep = {"train": train, "validation": validation, "all": np.ones(n_episodes, bool)}[split]
         self.episodes = np.nonzero(keep)[0]
         self.n_frames = self.array.shape[1]
         self._cache: dict[int, np.ndarray] = {}

@@ -52,7 +52,9 @@ class Recording(Protocol):
 class WorldEntry:
     """One world: its name, config type and the config a recording takes by default, the episodes' seeds (an
     inclusive range, and what a seed is), how an episode is recorded and rebuilt from a log, its pixel values by
-    name, whether it has a goal track, its actions, and the package extra it needs (None: none)."""
+    name, which of them are clear ground (no obstacle; the first is the background), whether it has a goal track,
+    its actions, the package extra it needs (None: none), and the seeds of its validation episodes and of the
+    episodes no model trains on (None: by a hash of the seed, `dynplan.data.datasets.is_validation`)."""
 
     name: str
     summary: str
@@ -65,7 +67,10 @@ class WorldEntry:
     pixel_values: Callable[[Config], dict[str, int]]
     has_goal: bool
     actions: tuple[str, ...]
+    clear: tuple[int, ...]
     extra: str | None = None
+    validation_seeds: frozenset[int] | None = None
+    held_out_seeds: frozenset[int] = frozenset()
 
     def config(self, values: dict | None = None) -> Config:
         """The world's config from a plain dict (a log's or a store's record), validated."""
@@ -78,6 +83,15 @@ class WorldEntry:
             raise ConfigError(f"{what}={seed} is invalid for the {self.name} world; valid range [{lo}, {hi}] "
                               f"({self.seed_is})")  # fmt: skip
         return seed
+
+    def values(self, config: Config | None = None) -> tuple[int, ...]:
+        """The pixel values of the world's frames (of `config`, else the recording default), ascending."""
+        return tuple(sorted(set(self.pixel_values(config or self.recording).values())))
+
+    @property
+    def background(self) -> int:
+        """The value of empty ground: what fills a frame padded to a model's grid."""
+        return self.clear[0]
 
 
 def road_pixel_values(config: RoadConfig) -> dict[str, int]:
@@ -102,13 +116,17 @@ ROAD = WorldEntry(
     config_type=RoadConfig, recording=RoadConfig(level=6, agent_speed=0.5), seeds=(0, 2**62),
     seed_is="the seed of the episode's random draws", record=generate_world, rebuild=_road_rebuild,
     pixel_values=road_pixel_values, has_goal=True,
-    actions=tuple(f"heading {angle:g}°" for angle in ACTION_ANGLES_DEG),
+    actions=tuple(f"heading {angle:g}°" for angle in ACTION_ANGLES_DEG), clear=(FREE, GOAL_VALUE),
 )  # fmt: skip
 FREEWAY = WorldEntry(
     name="freeway", summary="Atari Freeway's lanes (154 × 152), the NOOP shadow of the game; no goal",
     config_type=freeway.FreewayConfig, recording=freeway.FreewayConfig(), seeds=(0, len(freeway.MODES) - 1),
     seed_is="the game mode", record=_freeway_record, rebuild=_freeway_rebuild,
     pixel_values=lambda config: dict(freeway.PIXEL_VALUES), has_goal=False, actions=freeway.ACTIONS, extra="atari",
+    clear=freeway.ROAD_VALUES,
+    # modes 0–3 and 6–7 train the world model, 5 validates it, and 4 is never trained on: the evaluation's mode
+    # that the model never saw (its speeds change during the game, as 5–7's do)
+    validation_seeds=frozenset({5}), held_out_seeds=frozenset({4}),
 )  # fmt: skip
 
 #: Every world, by name; the first is the default.

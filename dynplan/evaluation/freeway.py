@@ -2,8 +2,9 @@
 
 An episode is a game mode and a NOOP start (drawn from a seed); the chicken is read from the game's RAM and the
 world through the NOOP shadow. Techniques: `oracle` plans with the true future (the mode's recording from the
-episode's start on), `zero` with lanes that hold no car after the frame now, `up` always plays UP and `random`
-draws each action uniformly. One result file per episode (`RESULTS/RUN/mode<m>-seed<s>/<technique>-k<k>-e<i>.json`,
+episode's start on), `learned` with the future a world model imagines from the frames observed (once a decision),
+`zero` with lanes that hold no car after the frame now, `up` always plays UP and `random` draws each action
+uniformly. One result file per episode (`RESULTS/RUN/mode<m>-seed<s>/<technique>-k<k>-e<i>.json`,
 written atomically), so an interrupted evaluation resumes per episode.
 """
 
@@ -11,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -22,11 +24,15 @@ from dynplan.cli import InputError
 from dynplan.config import Config
 from dynplan.env.freeway import ROAD_VALUES, Chicken, FreewayEpisode, FreewayGame, FreewayStep, record_mode
 from dynplan.files import write_bytes_atomic
+from dynplan.models.world_model import load_world_model
 from dynplan.planning.chicken import ChickenSearch, plan_chicken
+from dynplan.planning.forward import ForwardModel
 
-TECHNIQUES = ("oracle", "zero", "up", "random")
+TECHNIQUES = ("oracle", "learned", "zero", "up", "random")
 #: Techniques that plan (the others' decisions take no search).
-PLANNERS = ("oracle", "zero")
+PLANNERS = ("oracle", "learned", "zero")
+#: Frames a learned agent keeps of what it observed: more than any world model's context.
+OBSERVED = 16
 
 
 class FreewayPlan(Config):
@@ -64,45 +70,66 @@ class FreewayResult:
 @dataclass(frozen=True)
 class Turn:
     """One step played: the chicken before it, the lanes the planner searched (the frame now and the k it predicted;
-    None for a technique that does not plan), the action, the search's milliseconds (None likewise) and the step."""
+    None for a technique that does not plan), the action, the decision's milliseconds (the prediction's and the
+    search's; None likewise) and the step."""
 
     chicken: Chicken
     frames: np.ndarray | None
     action: int
-    search_ms: float | None
+    decision_ms: float | None
     step: FreewayStep
 
 
-def play_turns(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0) -> Iterator[Turn]:
-    """Play `episode` of the real game with `technique`, one turn at a time, to the game's end."""
+#: The world-model configuration a learned agent imagines Freeway's lanes with (`dynplan.models.registry`).
+MODEL = "freeway"
+
+
+def world_model_for(technique: str, model_dir: str | os.PathLike | None = None) -> ForwardModel | None:
+    """The world model `technique` plans with: for `learned`, Freeway's (trained into `model_dir`, holding
+    `vqvae.pt` and `pixelcnn.pt`; else its committed weights); None for the others."""
+    return load_world_model(model_dir, MODEL) if technique == "learned" else None
+
+
+def play_turns(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0,
+               model: ForwardModel | None = None) -> Iterator[Turn]:  # fmt: skip
+    """Play `episode` of the real game with `technique`, one turn at a time, to the game's end; `model`: the world
+    model a learned agent imagines the lanes with."""
     if technique not in TECHNIQUES:
         raise ValueError(f"technique {technique!r} is not one of {', '.join(TECHNIQUES)}")
+    if (technique == "learned") != (model is not None):
+        raise ValueError("a world model is what the learned technique, and it alone, plans with")
     future = record_mode(episode.mode).frames[episode.noop_start :] if technique == "oracle" else None
     game, rng = FreewayGame(episode), np.random.default_rng(seed)
-    frame, t = game.world_frame(), 0
-    road = np.full((search.horizon, *frame.shape), ROAD_VALUES[0], np.uint8)
+    observed = [game.world_frame()]
+    road = np.full((search.horizon, *observed[0].shape), ROAD_VALUES[0], np.uint8)
     while True:
-        chicken, frames, ms = game.chicken, None, None
+        chicken, frames, ms, start = game.chicken, None, None, time.perf_counter()
         if technique in PLANNERS:
-            frames = future[t : t + search.horizon + 1] if future is not None else np.concatenate([frame[None], road])
-            decision = plan_chicken(chicken, frames, search)
-            action, ms = decision.action, decision.search_ms
+            t = len(observed) - 1
+            if future is not None:
+                frames = future[t : t + search.horizon + 1]
+            else:
+                ahead = road if model is None else model.predict(np.stack(observed[-OBSERVED:]), search.horizon).frames
+                frames = np.concatenate([observed[-1][None], ahead])
+            action = plan_chicken(chicken, frames, search).action
+            ms = (time.perf_counter() - start) * 1e3
         else:
             action = 1 if technique == "up" else int(rng.integers(0, 3))
         step = game.step(action)
         yield Turn(chicken, frames, action, ms, step)
         if step.done:
             return
-        t, frame = t + 1, step.frame
+        observed = [*observed[-OBSERVED + 1 :], step.frame]
 
 
-def play_episode(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0) -> FreewayResult:
+def play_episode(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0,
+                 model: ForwardModel | None = None) -> FreewayResult:  # fmt: skip
     """Play `episode` of the real game with `technique` to the game's end: its score, knocks, steps, decision ms."""
     score, knocks, steps, ms = 0.0, 0, 0, []
-    for turn in play_turns(technique, episode, search, seed):
+    for turn in play_turns(technique, episode, search, seed, model):
         score, steps = score + turn.step.reward, steps + 1
         knocks += turn.chicken.timer == 0 and turn.step.chicken.knocked
-        ms += [] if turn.search_ms is None else [turn.search_ms]
+        ms += [] if turn.decision_ms is None else [turn.decision_ms]
     median = round(float(np.median(ms)), 3) if ms else None
     return FreewayResult(technique, episode.mode, episode.noop_start, -1, search.horizon, score, knocks, steps, median)
 
@@ -114,13 +141,14 @@ def result_path(results: str | os.PathLike, run: str, technique: str, plan: Free
 
 
 def evaluate_episode(results: str | os.PathLike, run: str, technique: str, plan: FreewayPlan, index: int,
-                     search: ChickenSearch) -> FreewayResult:  # fmt: skip
-    """Episode `index` of `plan` played by `technique` and written to the run, unless the run already holds it."""
+                     search: ChickenSearch, model: ForwardModel | None = None) -> FreewayResult:  # fmt: skip
+    """Episode `index` of `plan` played by `technique` (with `model`, when learned) and written to the run, unless
+    the run already holds it."""
     path = result_path(results, run, technique, plan, search.horizon, index)
     if path.is_file():
         return read_result(path)
     episode = plan.episode_list()[index]
-    played = play_episode(technique, episode, search, seed=plan.seed * 1000 + index)
+    played = play_episode(technique, episode, search, plan.seed * 1000 + index, model)
     result = FreewayResult(**{**played.to_dict(), "episode": index})
     write_bytes_atomic(path, (json.dumps(result.to_dict(), sort_keys=True) + "\n").encode())
     return result

@@ -21,6 +21,7 @@ from dynplan.logs.reader import EpisodeLog, LogError
 from dynplan.logs.recording import read_recorded_log
 from dynplan.logs.writer import write_episode_log
 from dynplan.planning.chicken import ChickenSearch
+from dynplan.planning.forward import ForwardModel
 
 
 def replayable(log: str | os.PathLike) -> EpisodeLog:
@@ -57,15 +58,16 @@ def track(turns: list[Turn], noop_start: int) -> AgentTrack:
 
 
 def replay_freeway(log: str | os.PathLike, technique: str, noop_start: int, search: ChickenSearch,
-                   out: str | os.PathLike) -> FreewayResult:  # fmt: skip
-    """Play the episode of `log`'s mode with NOOP start `noop_start` by `technique` and write its replay to `out`."""
+                   out: str | os.PathLike, model: ForwardModel | None = None) -> FreewayResult:  # fmt: skip
+    """Play the episode of `log`'s mode with NOOP start `noop_start` by `technique` (with `model` when learned) and
+    write its replay to `out`."""
     recorded = replayable(log)
     episode = FreewayEpisode(mode=recorded.seed, noop_start=noop_start)
-    turns = list(play_turns(technique, episode, search))
+    turns = list(play_turns(technique, episode, search, model=model))
     imagined = {noop_start + i: turn.frames[1:] for i, turn in enumerate(turns) if turn.frames is not None}
     write_episode_log(out, recorded.world(), agent=track(turns, noop_start), imagined=imagined or None)
     knocks = sum(turn.chicken.timer == 0 and turn.step.chicken.knocked for turn in turns)
-    ms = [turn.search_ms for turn in turns if turn.search_ms is not None]
+    ms = [turn.decision_ms for turn in turns if turn.decision_ms is not None]
     return FreewayResult(technique, episode.mode, noop_start, 0, search.horizon,
                          float(sum(turn.step.reward for turn in turns)), int(knocks), len(turns),
                          round(float(np.median(ms)), 3) if ms else None)  # fmt: skip

@@ -11,15 +11,16 @@ one-position-at-a-time generation (`dynplan.bench.reference.generate_naive`), wh
 from __future__ import annotations
 
 import weakref
+from collections import OrderedDict
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
 from dynplan.models.batched import BatchedWeights, batched_weights, generate_batched
 from dynplan.models.generation import KernelWeights, generate_fast, kernel_weights
-from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
+from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms, from_strips, to_strips
 
 #: Grids generated together from which the batched generation is used on the CPU instead of the compiled kernel
 #: (whose row blocks run on torch's threads); measured by `python -m dynplan.bench generation` (on 2 cores the
@@ -29,7 +30,11 @@ BATCHED_FROM = 64
 #: A sampled code is drawn from the prior's softmax as it is (temperature 1); greedy codes are its argmax.
 SAMPLED = 1.0
 
+#: Greedy next grids each prior keeps, by context (the most recently used; `_greedy_next`).
+GREEDY_MEMO = 4096
+
 _LAYOUTS: weakref.WeakKeyDictionary[ConditionalPixelCNN, dict] = weakref.WeakKeyDictionary()
+_MEMOS: weakref.WeakKeyDictionary[ConditionalPixelCNN, OrderedDict] = weakref.WeakKeyDictionary()
 
 
 def generation_weights(prior: ConditionalPixelCNN, layout: str) -> KernelWeights | BatchedWeights:
@@ -56,12 +61,37 @@ class ChainSpec:
     patch: tuple[int, int] = (1, 1)
 
 
+def _kernel_path(spec: ChainSpec, rows: int) -> bool:
+    """Whether `rows` grids generate with the compiled kernel (else the batched generation)."""
+    return spec.device == "cpu" and rows < BATCHED_FROM
+
+
+def _greedy_next(prior: ConditionalPixelCNN, context: torch.Tensor, spec: ChainSpec) -> torch.Tensor:
+    """The greedy next grid of each row of `context` (B, context, h, w) on the compiled kernel's path, each
+    context's generated once and kept: the greedy chain is a function of its context, so a decision whose newest
+    observed grid is the one the last decision predicted first continues that decision's chain, and only its last
+    grid is new. The kernel generates each row on its own, so a kept grid is the one it would generate again."""
+    memo = _MEMOS.setdefault(prior, OrderedDict())
+    keys = [(row.shape, row.numpy().tobytes()) for row in context]
+    missing = list(dict.fromkeys(key for key in keys if key not in memo))
+    if missing:
+        first = {key: i for i, key in enumerate(keys)}
+        grids, _ = _next_grids(prior, context[[first[key] for key in missing]], None, spec)
+        memo.update(zip(missing, grids, strict=True))
+    out = torch.stack([memo[key] for key in keys])
+    for key in keys:
+        memo.move_to_end(key)
+    while len(memo) > GREEDY_MEMO:
+        memo.popitem(last=False)
+    return out
+
+
 def _next_grids(prior: ConditionalPixelCNN, context: torch.Tensor, uniforms: torch.Tensor | None,
                 spec: ChainSpec) -> tuple[torch.Tensor, np.ndarray | None]:  # fmt: skip
     """One grid per row of `context` (B, context, h, w), on the path its batch size calls for, and (with a table)
     its (B, h, w, P) expected obstacle pixels."""
     temperature = SAMPLED if uniforms is not None else 0.0
-    batched = spec.device != "cpu" or len(context) >= BATCHED_FROM
+    batched = not _kernel_path(spec, len(context))
     weights = generation_weights(prior, spec.device if batched else "kernel")
     if batched:
         out = generate_batched(prior, context, temperature, None, weights, uniforms, spec.table)
@@ -79,7 +109,23 @@ def chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[i
           spec: ChainSpec) -> tuple[torch.Tensor, np.ndarray | None]:  # fmt: skip
     """The prior chained ahead from `context` (B, context, h, w), row b for `lengths[b]` grids: codes
     (B, max length, h, w), zero past a row's length, and with `spec.table` each grid's per-pixel obstacle
-    probability (B, max length, H, W). Sampled when `spec.streams` is given, else greedy."""
+    probability (B, max length, H, W). Sampled when `spec.streams` is given, else greedy. A prior of strips
+    (`strip_rows`) chains every strip of a grid as a row of its own, drawing from its grid's stream."""
+    rows = prior.config.strip_rows
+    if rows is None:
+        return _chain(prior, context, lengths, spec)
+    per = context.shape[2] // rows
+    streams = [(generator, count * per) for generator, count in spec.streams]
+    strips = to_strips(context, rows)
+    grids, probability = _chain(prior, strips, np.repeat(lengths, per), replace(spec, streams=streams))
+    if probability is not None:
+        probability = from_strips(torch.from_numpy(probability), len(context)).numpy()
+    return from_strips(grids, len(context)), probability
+
+
+def _chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[int],
+           spec: ChainSpec) -> tuple[torch.Tensor, np.ndarray | None]:  # fmt: skip
+    """`chain` of whole grids."""
     B, _, h, w = context.shape
     lengths = np.asarray(lengths)
     steps = int(lengths.max())
@@ -96,7 +142,10 @@ def chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[i
             pairs = zip(spec.streams, stream_lengths, strict=True)
             uniforms = torch.cat([draw_uniforms(count, h, w, SAMPLED, generator)
                                   for (generator, count), n in pairs if n > step])  # fmt: skip
-        grid, expected = _next_grids(prior, context[rows], uniforms, spec)
+        if uniforms is None and spec.table is None and _kernel_path(spec, len(live)):
+            grid, expected = _greedy_next(prior, context[rows], spec), None
+        else:
+            grid, expected = _next_grids(prior, context[rows], uniforms, spec)
         if probability is not None:
             expected = expected.reshape(len(live), h, w, ph, pw)
             probability[live, step] = expected.transpose(0, 1, 3, 2, 4).reshape(len(live), h * ph, w * pw)

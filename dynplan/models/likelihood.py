@@ -2,7 +2,8 @@
 
 * `DMoL`: the discretized mixture of logistics of PixelCNN++ (the paper's choice), on [−1, 1] with 256 bins;
   its mid-point is the most probable component's mean, and both it and samples snap to the nearest world value.
-* `Categorical`: a softmax over the 7 values the world uses (free, 5 obstacle classes, goal); mid-point argmax.
+* `Categorical`: a softmax over the values a world uses (the road's 7 — free, 5 obstacle classes, goal — by
+  default; another world's legend when given); mid-point argmax.
 
 Both map decoder outputs (B, C, H, W) to a per-pixel negative log-likelihood, a mid-point frame and samples,
 as uint8 on the world's values.
@@ -30,10 +31,10 @@ def to_unit(frames: torch.Tensor) -> torch.Tensor:
     return frames.float() / 127.5 - 1.0
 
 
-def value_index(frames: torch.Tensor) -> torch.Tensor:
-    """uint8 frames on world values → class indices 0 … 6 (int64)."""
+def value_index(frames: torch.Tensor, values: tuple[int, ...] = WORLD_VALUES) -> torch.Tensor:
+    """uint8 frames on `values` (ascending) → class indices 0 … len(values) − 1 (int64)."""
     lut = torch.zeros(256, dtype=torch.long, device=frames.device)
-    lut[list(WORLD_VALUES)] = torch.arange(len(WORLD_VALUES), device=frames.device)
+    lut[list(values)] = torch.arange(len(values), device=frames.device)
     return lut[frames.long()]
 
 
@@ -189,30 +190,34 @@ class DMoL:
 
 
 class Categorical:
-    """A softmax over the world's 7 pixel values."""
+    """A softmax over a world's pixel `values` (ascending; the road's 7 by default)."""
 
-    channels = mid_channels = len(WORLD_VALUES)
+    def __init__(self, values: tuple[int, ...] = WORLD_VALUES):
+        if list(values) != sorted(set(values)) or not all(0 <= v <= 255 for v in values):
+            raise ValueError(f"values must be distinct pixel values in [0, 255], ascending; got {values}")
+        self.values = tuple(values)
+        self.channels = self.mid_channels = len(values)
 
     def nll(self, logits: torch.Tensor, frames: torch.Tensor) -> torch.Tensor:
-        return F.cross_entropy(logits, value_index(frames), reduction="none")
+        return F.cross_entropy(logits, value_index(frames, self.values), reduction="none")
 
     def mid(self, logits: torch.Tensor) -> torch.Tensor:
-        return torch.tensor(WORLD_VALUES, dtype=torch.uint8, device=logits.device)[_channel_argmax(logits)]
+        return torch.tensor(self.values, dtype=torch.uint8, device=logits.device)[_channel_argmax(logits)]
 
     def noise(self, shape: torch.Size, n: int, generator: torch.Generator | None = None) -> tuple[torch.Tensor, ...]:
-        """The uniform numbers n samples of logits of `shape` (B, 7, H, W) use: one per sample and pixel."""
+        """The uniform numbers n samples of logits of `shape` (B, values, H, W) use: one per sample and pixel."""
         B, _, H, W = shape
         return (_uniform((n, B, H, W), generator),)
 
     def sample_with(self, logits: torch.Tensor, noise: tuple[torch.Tensor, ...]) -> torch.Tensor:
         """Samples (n, B, H, W) uint8 given `noise` as `noise` draws it: each pixel's value by inverse transform
         of its softmax (the first value whose cumulative probability exceeds the pixel's number)."""
-        cdf = torch.softmax(logits, dim=1).cumsum(1)  # (B, 7, H, W)
+        cdf = torch.softmax(logits, dim=1).cumsum(1)  # (B, values, H, W)
         u = noise[0].to(logits.device)
         index = torch.zeros(u.shape, dtype=torch.uint8, device=u.device)
         for value in range(cdf.shape[1] - 1):  # how many cumulative probabilities the number reaches: the last
             index += u >= cdf[:, value]  # value takes whatever rounding leaves above cdf[-2]
-        return torch.tensor(WORLD_VALUES, dtype=torch.uint8, device=logits.device)[index.long()]
+        return torch.tensor(self.values, dtype=torch.uint8, device=logits.device)[index.long()]
 
     def sample(self, logits: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
         return self.sample_with(logits, self.noise(logits.shape, 1, generator))[0]

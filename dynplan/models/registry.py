@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models.caution import Caution
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
@@ -31,6 +32,11 @@ class WorldModelSpec:
     budgets: Mapping[str, Mapping] = field(default_factory=dict)
     weights: Mapping[str, str] = field(default_factory=dict)
     description: str = ""
+
+    @property
+    def world(self) -> str:
+        """The world whose frames it models."""
+        return self.tokenizer.world
 
     def __post_init__(self) -> None:
         if self.prior.codebook_size != self.tokenizer.codebook_size:
@@ -62,6 +68,18 @@ def world_model_spec(name: str) -> WorldModelSpec:
         raise ValueError(f"model must be one of {sorted(WORLD_MODELS)}, got {name!r}") from None
 
 
+def models_of(world_name: str) -> list[str]:
+    """The configurations that model world `world_name`, the world's default first."""
+    names = [name for name, spec in WORLD_MODELS.items() if spec.world == world_name]
+    return sorted(names, key=lambda name: name != default_model(world_name))
+
+
+def default_model(world_name: str) -> str:
+    """The configuration a command uses for world `world_name` unless told another: the road's "default", another
+    world's configuration of its own name."""
+    return "default" if world_name == DEFAULT_WORLD else world_name
+
+
 def caution_for(model: str, overrides: Mapping[str, float] | None = None) -> Caution:
     """Configuration `model`'s own caution with `overrides` (field → value, e.g. from the command line) applied;
     an unknown configuration has none of its own."""
@@ -85,4 +103,10 @@ register_world_model(WorldModelSpec(
     weights={"vqvae": "vqvae-default.pt", "pixelcnn": "pixelcnn-default.pt"},
     description="ours: 12 × 12 patch-local codes from 4096, calibrated categorical decoder, 32 × 8 prior, "
                 "occupancy 0.1 and a one-pixel lane margin",
+))  # fmt: skip
+register_world_model(WorldModelSpec(
+    "freeway", PRESETS["freeway"], PIXELCNN_PRESETS["freeway"],
+    budgets={"vqvae": {"epochs": 4, "steps_per_epoch": 500},
+             "pixelcnn": {"epochs": 40, "steps_per_epoch": 500, "threads": 1}},
+    description="Atari Freeway's: 40 × 38 patch-local codes from 640, the prior over lane strips of 4 × 38",
 ))  # fmt: skip

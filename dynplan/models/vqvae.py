@@ -18,9 +18,10 @@ import torch.nn.functional as F
 from pydantic import Field, model_validator
 from torch import nn
 
-from dynplan.config import Config
+from dynplan.config import Config, ConfigError
 from dynplan.data.patches import tiles
 from dynplan.env.config import GOAL_VALUE
+from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.models.likelihood import Categorical, DMoL, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
 
@@ -36,8 +37,16 @@ class VQVAEConfig(Config):
     """Architecture and optimisation of a VQ-VAE; `PRESETS` holds the named ones."""
 
     name: str = Field("custom", description="preset name, recorded in checkpoints")
+    world: str = Field(DEFAULT_WORLD, description="the world whose frames it encodes (its pixel values)")
     height: int = Field(48, ge=8, le=512, description="frame rows")
     width: int = Field(48, ge=8, le=512, description="frame columns")
+    pad_top: int = Field(
+        0,
+        ge=0,
+        le=64,
+        description="rows of the world's background added above a frame before it is encoded (and "
+        "dropped after decoding), so that the code grid's rows line up with the world's lanes",
+    )
     channels: tuple[int, ...] = Field((42, 32, 16, 16), description="encoder conv widths, input side first")
     strides: tuple[int, ...] = Field((2, 2, 2, 1), description="encoder conv strides (1 or 2 each)")
     residual_blocks: int = Field(0, ge=0, le=16, description="residual blocks at the code resolution")
@@ -68,7 +77,14 @@ class VQVAEConfig(Config):
         "that decoder samples are as certain as the data make them (mid-point frames are unchanged)",
     )
 
-    _neutral = {"goal_weight": 1.0, "local": False, "codebook_fit": "learned", "calibrate_decoder": False}
+    _neutral = {
+        "goal_weight": 1.0,
+        "local": False,
+        "codebook_fit": "learned",
+        "calibrate_decoder": False,
+        "world": DEFAULT_WORLD,
+        "pad_top": 0,
+    }
 
     @model_validator(mode="after")
     def _check_shape(self) -> VQVAEConfig:
@@ -76,9 +92,17 @@ class VQVAEConfig(Config):
             raise ValueError("channels and strides must be non-empty and of the same length")
         if any(s not in (1, 2) for s in self.strides):
             raise ValueError(f"strides must each be 1 or 2, got {self.strides}")
+        try:
+            world(self.world)
+        except ConfigError as error:
+            raise ValueError(str(error)) from None
+        if self.world != DEFAULT_WORLD and self.likelihood == "dmol":
+            raise ValueError(f"likelihood 'dmol' snaps to the road's pixel values; the {self.world} world needs "
+                             "'categorical'")  # fmt: skip
         scale = 2 ** sum(s == 2 for s in self.strides)
-        if self.height % scale or self.width % scale:
-            raise ValueError(f"frame {self.height}×{self.width} is not divisible by the encoder's stride {scale}")
+        if (self.height + self.pad_top) % scale or self.width % scale:
+            raise ValueError(f"frame {self.height}×{self.width} (padded by {self.pad_top} rows) is not divisible by "
+                             f"the encoder's stride {scale}")  # fmt: skip
         if self.codebook_fit == "contents" and not self.local:
             raise ValueError("codebook_fit='contents' needs local=True")
         if self.calibrate_decoder and (self.codebook_fit != "contents" or self.likelihood != "categorical"):
@@ -89,7 +113,21 @@ class VQVAEConfig(Config):
     def grid(self) -> tuple[int, int]:
         """(h, w) of the code grid."""
         scale = 2 ** sum(s == 2 for s in self.strides)
-        return self.height // scale, self.width // scale
+        return (self.height + self.pad_top) // scale, self.width // scale
+
+    @property
+    def values(self) -> tuple[int, ...]:
+        """The pixel values of the world's frames, ascending."""
+        return world(self.world).values()
+
+
+def padded(frames: np.ndarray, config: VQVAEConfig) -> np.ndarray:
+    """uint8 frames (..., height, W) with `config.pad_top` rows of the world's background above (row 0 is the
+    bottom), as the tokenizer encodes them."""
+    if not config.pad_top:
+        return frames
+    pad = np.full((*frames.shape[:-2], config.pad_top, frames.shape[-1]), world(config.world).background, np.uint8)
+    return np.concatenate([frames, pad], axis=-2)
 
 
 PRESETS: dict[str, VQVAEConfig] = {
@@ -110,6 +148,27 @@ PRESETS: dict[str, VQVAEConfig] = {
         codebook_size=4096,
         likelihood="categorical",
         goal_weight=10.0,
+        learning_rate=1e-3,
+        batch_size=1024,
+        local=True,
+        codebook_fit="contents",
+        calibrate_decoder=True,
+    ),
+    # Atari Freeway's lanes (154 × 152, 14 values, docs/worlds.md): the default's patch-local content-fitted codes,
+    # the frame padded with 6 rows of road above so that code rows 4i … 4i + 3 are lane i (a 40 × 38 grid); 640
+    # codes hold every distinct 4 × 4 patch of the training modes (627).
+    "freeway": VQVAEConfig(
+        name="freeway",
+        world="freeway",
+        height=154,
+        width=152,
+        pad_top=6,
+        channels=(32, 64),
+        strides=(2, 2),
+        residual_blocks=2,
+        latent_dim=32,
+        codebook_size=640,
+        likelihood="categorical",
         learning_rate=1e-3,
         batch_size=1024,
         local=True,
@@ -177,7 +236,7 @@ class VQVAE(nn.Module):
             layers.append(nn.Conv2d(widths[-1], latent, 1))
         self.encoder = nn.Sequential(*layers)
         self.quantizer = VectorQuantizer(c.codebook_size, c.latent_dim, c.commitment)
-        self.pixel = DMoL(c.n_mixtures) if c.likelihood == "dmol" else Categorical()
+        self.pixel = DMoL(c.n_mixtures) if c.likelihood == "dmol" else Categorical(c.values)
         layers = []
         if latent != widths[-1] or c.residual_blocks:
             layers.append(nn.Conv2d(latent, widths[-1], 1))
@@ -217,7 +276,9 @@ class VQVAE(nn.Module):
         return weights
 
     def forward(self, frames: torch.Tensor) -> VQVAEOutput:
-        """uint8 frames (B, H, W) → reconstruction parameters, codes and the training losses."""
+        """uint8 frames (B, H, W) → reconstruction parameters, codes and the training losses (on the padded
+        frames)."""
+        frames = self._padded(frames)
         z = self.encoder(to_unit(frames).unsqueeze(1))
         q = self.quantizer(z)
         params = self.decoder(q.quantized)
@@ -235,7 +296,14 @@ class VQVAE(nn.Module):
     def patch(self) -> tuple[int, int]:
         """(rows, columns) of the frame patch one code covers."""
         h, w = self.config.grid
-        return self.config.height // h, self.config.width // w
+        return (self.config.height + self.config.pad_top) // h, self.config.width // w
+
+    def _padded(self, frames: torch.Tensor) -> torch.Tensor:
+        """uint8 frames (B, height, W) → (B, height + pad_top, W), the background above (`padded`)."""
+        if not self.config.pad_top:
+            return frames
+        pad = frames.new_full((len(frames), self.config.pad_top, frames.shape[-1]), world(self.config.world).background)
+        return torch.cat([frames, pad], dim=1)
 
     def autoencode_params(self, patches: torch.Tensor) -> torch.Tensor:
         """uint8 patches (N, ph, pw) → likelihood parameters, without quantisation (patch-local models only):
@@ -260,6 +328,7 @@ class VQVAE(nn.Module):
         return _array_out(codes, numpy_in, single)
 
     def _encode(self, frames: torch.Tensor) -> torch.Tensor:
+        frames = self._padded(frames)
         if self.config.local:
             return self._encode_distinct_patches(frames)
         return self.quantizer.nearest(self.encoder(to_unit(frames).unsqueeze(1)))
@@ -281,7 +350,7 @@ class VQVAE(nn.Module):
         """Integer codes (N, h, w) → the decoder's likelihood parameters (N, C, H, W), in blocks of `DECODE_ROWS`
         frames (a frame's output does not depend on the others in its block). `channels`: only the first `channels`
         of C where that is cheaper (a last transposed convolution computes only those output channels, the same
-        numbers; what a DMoL mid-point needs)."""
+        numbers; what a DMoL mid-point needs). The padded rows are dropped: (N, C, height, W)."""
         if len(codes) > DECODE_ROWS:
             return torch.cat([self.decode_params(codes[s : s + DECODE_ROWS], channels)
                               for s in range(0, len(codes), DECODE_ROWS)])  # fmt: skip
@@ -289,15 +358,16 @@ class VQVAE(nn.Module):
         last = self.decoder[-1]
         if (channels is not None and isinstance(last, nn.ConvTranspose2d) and channels < last.out_channels
                 and not self.config.calibrate_decoder):  # fmt: skip
-            return F.conv_transpose2d(self.decoder[:-1](latent), last.weight[:, :channels].contiguous(),
-                                      last.bias[:channels], last.stride, last.padding, last.output_padding,
-                                      last.groups, last.dilation)  # fmt: skip
-        params = self.decoder(latent)
+            params = F.conv_transpose2d(self.decoder[:-1](latent), last.weight[:, :channels].contiguous(),
+                                        last.bias[:channels], last.stride, last.padding, last.output_padding,
+                                        last.groups, last.dilation)  # fmt: skip
+        else:
+            params = self.decoder(latent)
         if self.config.calibrate_decoder:
             ph, pw = self.patch
             scale = self.code_sharpness[codes.long()].repeat_interleave(ph, 1).repeat_interleave(pw, 2)
             params = params * scale[:, None]
-        return params
+        return params[:, :, : self.config.height] if self.config.pad_top else params
 
     @torch.no_grad()
     def calibrate(self, contents: torch.Tensor, counts: torch.Tensor,
@@ -307,7 +377,7 @@ class VQVAE(nn.Module):
         encode to it; codes no content encodes to keep scale 1. Returns the scales (K,)."""
         codes = self.quantizer.nearest(self.encoder(to_unit(contents).unsqueeze(1))).reshape(-1)
         logits = self.decoder(self.quantizer.lookup(codes[:, None, None]))  # (U, values, ph, pw)
-        target = value_index(contents)
+        target = value_index(contents, self.pixel.values)
         nll = torch.stack([F.cross_entropy(logits * s, target, reduction="none").sum((1, 2)) for s in scales], 1)
         per_code = torch.zeros(self.config.codebook_size, len(scales), dtype=torch.float64, device=nll.device)
         per_code.index_add_(0, codes, nll.double() * counts.double()[:, None])

@@ -32,7 +32,6 @@ from dynplan.models.chain import ChainSpec, chain
 from dynplan.models.checkpoint import CheckpointError, pretrained_path
 from dynplan.models.device import check_device, one_thread
 from dynplan.models.encoding import encode_contexts
-from dynplan.models.likelihood import WORLD_VALUES
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
 from dynplan.models.streams import observation_stream
@@ -46,9 +45,12 @@ MAX_HORIZON = 512
 #: The most decoder samples, and the most sampled futures, one model merges (as an agent's spec allows).
 MAX_DRAWS = 64
 
-#: Which pixel values are the world's, by value (index 256 stands for any value outside [0, 255]).
-_WORLD_PIXEL = np.zeros(257, bool)
-_WORLD_PIXEL[list(WORLD_VALUES)] = True
+
+def _pixel_table(values: Sequence[int]) -> np.ndarray:
+    """Which pixel values are the world's, by value (index 256 stands for any value outside [0, 255])."""
+    table = np.zeros(257, bool)
+    table[list(values)] = True
+    return table
 
 
 @dataclass(frozen=True)
@@ -97,6 +99,8 @@ class LearnedWorldModel(ForwardModel):
         self.context = prior.config.context
         self.device = check_device(device)
         self._code_obstacles: torch.Tensor | None = None
+        self._values = tokenizer.config.values
+        self._world_pixel = _pixel_table(self._values)
 
     @torch.inference_mode()
     def code_obstacles(self) -> torch.Tensor:
@@ -131,7 +135,8 @@ class LearnedWorldModel(ForwardModel):
             horizon = f"ks{index}" if index else "k"
             raise ValueError(f"{method}: {horizon} must be an integer in [1, {MAX_HORIZON}] (frames ahead); got {k!r}")
         height, width = self.tokenizer.config.height, self.tokenizer.config.width
-        name, expect = f"observed{index}", f"(t+1, {height}, {width}) frames of world pixel values {WORLD_VALUES}"
+        values = self._values
+        name, expect = f"observed{index}", f"(t+1, {height}, {width}) frames of world pixel values {values}"
         if not isinstance(observed, np.ndarray):
             raise ValueError(f"{method}: {name} must be a numpy array of {expect}; got {type(observed).__name__}")
         if observed.ndim != 3 or observed.shape[1:] != (height, width):
@@ -140,13 +145,13 @@ class LearnedWorldModel(ForwardModel):
         if len(observed) == 0:
             raise ValueError(f"{method}: no frames observed: {name} must hold at least one of {expect}")
         if not np.issubdtype(observed.dtype, np.integer):
-            raise ValueError(f"{method}: {name} must hold integer pixel values {WORLD_VALUES}; got {observed.dtype}")
+            raise ValueError(f"{method}: {name} must hold integer pixel values {values}; got {observed.dtype}")
         read = observed[-self.context :]
-        bad = ~_WORLD_PIXEL[read if read.dtype == np.uint8 else np.where((read < 0) | (read > 255), 256, read)]
+        bad = ~self._world_pixel[read if read.dtype == np.uint8 else np.where((read < 0) | (read > 255), 256, read)]
         if bad.any():
             f, row, col = (int(i) for i in np.argwhere(bad)[0])
             raise ValueError(f"{method}: {name} frame {len(observed) - len(read) + f} holds {read[f, row, col]} at "
-                             f"row {row}, column {col}, which is not a world pixel value {WORLD_VALUES}")  # fmt: skip
+                             f"row {row}, column {col}, which is not a world pixel value {values}")  # fmt: skip
         return (read if read.dtype == np.uint8 else read.astype(np.uint8)), int(k)
 
     def cost(self, k: int) -> float:

@@ -19,10 +19,10 @@ import zarr
 
 from dynplan.data.datasets import WindowDataset
 from dynplan.data.history import context_indices, first_target
+from dynplan.models.chain import ChainSpec, chain
 from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
-from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig, to_strips
 from dynplan.models.vqvae import VQVAE
 from dynplan.render import comparison_columns
 from dynplan.training import loop
@@ -72,6 +72,10 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         frames = np.concatenate([context_indices(target, config.context), target[:, None]], axis=1)
         window = grids[e[:, None], frames].astype(np.int64)  # (B, context + 1, h, w)
         window = torch.from_numpy(window).to(device, non_blocking=True)
+        if config.strip_rows:  # one strip of each window, drawn at random
+            strips = window.shape[2] // config.strip_rows
+            pick = torch.randint(0, strips, (len(window),), generator=generator).to(device)
+            window = to_strips(window, config.strip_rows)[torch.arange(len(window), device=device) * strips + pick]
         if config.learning_rate_halflife:
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(config, _steps_taken(optimiser))
@@ -95,22 +99,26 @@ def _validation_scores(model: ConditionalPixelCNN, tokenizer: VQVAE, validation:
     val_context, val_target, val_frames = validation
     generated = np.linspace(0, len(val_target) - 1, min(256, len(val_target))).astype(int)  # spread evenly
     shown: dict[str, np.ndarray] = {}  # the last evaluation's first predicted next frames, and the truth
+    rows = model.config.strip_rows
+    # chunks: the logits of all windows at once are large (256 windows of the default's 12 × 12 grid)
+    chunk = max(1, 256 * 144 // (val_target.shape[1] * val_target.shape[2]))
 
     def evaluate() -> dict[str, float]:
         model.eval()
         loss = accuracy = 0.0
         with torch.inference_mode():
-            for i in range(0, len(val_target), 256):  # chunks: the logits of all windows at once are large
-                out = model(val_context[i : i + 256].to(device), val_target[i : i + 256].to(device))
-                loss += out.loss.item() * len(out.logits)
-                accuracy += out.accuracy.item() * len(out.logits)
-            # Generation is the planner's CPU path (numba rows): score that, on a CPU copy when training elsewhere.
+            for i in range(0, len(val_target), chunk):
+                context, target = val_context[i : i + chunk], val_target[i : i + chunk]
+                out = model(to_strips(context, rows).to(device), to_strips(target[:, None], rows)[:, 0].to(device))
+                loss += out.loss.item() * len(target)
+                accuracy += out.accuracy.item() * len(target)
+            # Generation is the planner's CPU path: score that, on a CPU copy when training elsewhere.
             on_cpu = model if device.type == "cpu" else copy.deepcopy(model).cpu()
-            predicted = generate_fast(on_cpu, val_context[generated])
+            predicted = chain(on_cpu, val_context[generated], [1] * len(generated), ChainSpec())[0][:, 0]
             frames = tokenizer.decode(predicted).numpy()
         model.train()
         shown["true"], shown["predicted"] = val_frames[generated[:6]], frames[:6]
-        errors = frame_errors(val_frames[generated], frames)
+        errors = frame_errors(val_frames[generated], frames, tokenizer.config.world)
         exact = (predicted == val_target[generated]).all(dim=(1, 2)).float().mean()
         return {"val_loss": loss / len(val_target), "val_accuracy": accuracy / len(val_target),
                 "val_greedy_grid_exact": float(exact), **{f"val_next_{k}": v for k, v in errors.items()}}  # fmt: skip

@@ -19,7 +19,7 @@ from dynplan.data.datasets import FrameDataset
 from dynplan.data.patches import distinct_patches
 from dynplan.models.checkpoint import VQVAE_KIND
 from dynplan.models.metrics import frame_errors
-from dynplan.models.vqvae import SHARPNESS_GRID, VQVAE, VQVAEConfig
+from dynplan.models.vqvae import SHARPNESS_GRID, VQVAE, VQVAEConfig, padded
 from dynplan.training import loop
 from dynplan.training.loop import TrainBudget
 
@@ -55,7 +55,7 @@ def evaluate(model: VQVAE, frames: np.ndarray, batch: int = 256) -> dict[str, fl
     counts = torch.bincount(torch.cat(codes), minlength=model.config.codebook_size).double()
     p = counts / counts.sum()
     return {
-        **{f"val_{k}": v for k, v in frame_errors(frames, np.concatenate(decoded)).items()},
+        **{f"val_{k}": v for k, v in frame_errors(frames, np.concatenate(decoded), model.config.world).items()},
         "val_codes_used": float((counts > 0).sum()),
         "val_perplexity": float(torch.exp(-(p * torch.log(p + 1e-12)).sum())),
     }
@@ -200,7 +200,7 @@ def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndar
     and decode as the autoencoder does — and, with `calibrate_decoder`, by fitting each code's temperature to
     how often the patches occur (uniform draws leave the decoder ~0.2 % unsure of each empty-road pixel)."""
     device = next(model.parameters()).device
-    every, counts = patch_counts(frames, model.patch)
+    every, counts = patch_counts(padded(frames, config), model.patch)
     contents, coverage = _most_frequent(every, counts, config.codebook_size)
     contents = torch.from_numpy(contents).to(device)
     every, counts = torch.from_numpy(every).to(device), torch.from_numpy(counts).to(device)
