@@ -6,6 +6,8 @@ on a Freeway store, and a learned agent playing the real game with a model train
 from __future__ import annotations
 
 import copy
+import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -154,10 +156,10 @@ def test_a_learned_agent_plays_the_game_with_a_model_trained_on_a_freeway_store(
     folder = freeway_store / "model"
     folder.mkdir()
     for path, name in ((tokenizer, "vqvae.pt"), (prior, "pixelcnn.pt")):
-        (folder / name).write_bytes(open(path, "rb").read())
+        (folder / name).write_bytes(Path(path).read_bytes())
     model = world_model_for("learned", folder)
     episode = freeway.FreewayEpisode(mode=0, noop_start=3)
-    turns = [turn for _, turn in zip(range(6), play_turns("learned", episode, ChickenSearch(horizon=3), model=model))]
+    turns = list(itertools.islice(play_turns("learned", episode, ChickenSearch(horizon=3), model=model), 6))
     assert all(turn.frames.shape == (4, 154, 152) and turn.decision_ms > 0 for turn in turns)
     assert set(np.unique(np.stack([turn.frames for turn in turns]))) <= set(PRESETS["freeway"].values)
     with pytest.raises(ValueError, match="a world model is what the learned technique, and it alone, plans with"):
