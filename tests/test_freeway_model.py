@@ -22,8 +22,9 @@ from dynplan.data.store import list_logs
 from dynplan.env import freeway
 from dynplan.env.worlds import FREEWAY, ROAD
 from dynplan.models import chain as chain_module
-from dynplan.models.chain import ChainSpec, chain
+from dynplan.models.chain import ChainSpec, chain, forget_greedy
 from dynplan.models.likelihood import Categorical
+from dynplan.models.metrics import frame_errors
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN, PixelCNNConfig, from_strips, to_strips
 from dynplan.models.registry import default_model, models_of, world_model_spec
 from dynplan.models.vqvae import PRESETS, VQVAE, VQVAEConfig, padded
@@ -103,7 +104,7 @@ def test_the_greedy_chain_is_kept_by_context_and_continued(monkeypatch):
     continued, _ = chain(prior, observed, [4], spec)
     assert torch.equal(continued[:, :3], fresh[:, 1:])
     assert len(generated) == 1 and 1 <= generated[0] <= 3  # only the last grid is new: its distinct strips
-    chain_module._MEMOS.pop(prior)
+    forget_greedy()
     assert torch.equal(chain(prior, observed, [4], spec)[0], continued)  # the same as generated afresh
 
 
@@ -164,3 +165,26 @@ def test_a_learned_agent_plays_the_game_with_a_model_trained_on_a_freeway_store(
     assert set(np.unique(np.stack([turn.frames for turn in turns]))) <= set(PRESETS["freeway"].values)
     with pytest.raises(ValueError, match="a world model is what the learned technique, and it alone, plans with"):
         next(play_turns("oracle", episode, ChickenSearch(horizon=3), model=model))
+
+
+def test_the_priors_validation_generates_with_the_weights_it_has_now():
+    """Generation keeps a prior's laid-out weights and greedy grids per prior object; a prior in training changes
+    under the same object, so each validation generates with a copy of the weights as they are then."""
+    from dynplan.training.pixelcnn import _validation_scores
+
+    torch.manual_seed(0)
+    config = PIXELCNN_PRESETS["freeway"].model_copy(update={"channels": 8, "layers": 2, "condition_channels": 8})
+    prior, tokenizer = ConditionalPixelCNN(config), VQVAE(PRESETS["freeway"]).eval()
+    context = torch.randint(0, 640, (3, 4, 40, 38))
+    target = torch.randint(0, 640, (3, 40, 38))
+    frames = tokenizer.decode(target.numpy())
+    evaluate, images = _validation_scores(prior, tokenizer, (context, target, frames), torch.device("cpu"))
+    evaluate()  # generates with the weights as they are, laying them out
+    code = int(target[0, 0, 0])
+    with torch.no_grad():
+        prior.head[-1].bias.fill_(0.0)
+        prior.head[-1].bias[code] = 1e4  # every position now predicts this code
+    after = evaluate()
+    everywhere = tokenizer.decode(np.full((3, 40, 38), code))
+    assert after["val_next_pixel_acc"] == pytest.approx(frame_errors(frames, everywhere, "freeway")["pixel_acc"])
+    assert images()["next_frame"].shape[0] > 0

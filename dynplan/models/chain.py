@@ -86,6 +86,11 @@ def _greedy_next(prior: ConditionalPixelCNN, context: torch.Tensor, spec: ChainS
     return out
 
 
+def forget_greedy() -> None:
+    """Drop every prior's kept greedy grids (`_greedy_next`): the next chains generate every grid."""
+    _MEMOS.clear()
+
+
 def _next_grids(prior: ConditionalPixelCNN, context: torch.Tensor, uniforms: torch.Tensor | None,
                 spec: ChainSpec) -> tuple[torch.Tensor, np.ndarray | None]:  # fmt: skip
     """One grid per row of `context` (B, context, h, w), on the path its batch size calls for, and (with a table)

@@ -112,8 +112,9 @@ def _validation_scores(model: ConditionalPixelCNN, tokenizer: VQVAE, validation:
                 out = model(to_strips(context, rows).to(device), to_strips(target[:, None], rows)[:, 0].to(device))
                 loss += out.loss.item() * len(target)
                 accuracy += out.accuracy.item() * len(target)
-            # Generation is the planner's CPU path: score that, on a CPU copy when training elsewhere.
-            on_cpu = model if device.type == "cpu" else copy.deepcopy(model).cpu()
+            # Generation is the planner's CPU path: score that, on a copy of the weights as they are now (generation
+            # lays a prior's weights out, and keeps its greedy grids, once per prior object).
+            on_cpu = copy.deepcopy(model).cpu()
             predicted = chain(on_cpu, val_context[generated], [1] * len(generated), ChainSpec())[0][:, 0]
             frames = tokenizer.decode(predicted).numpy()
         model.train()
