@@ -106,7 +106,8 @@ register_world_model(WorldModelSpec(
 ))  # fmt: skip
 register_world_model(WorldModelSpec(
     "freeway", PRESETS["freeway"], PIXELCNN_PRESETS["freeway"],
-    budgets={"vqvae": {"epochs": 4, "steps_per_epoch": 500},
-             "pixelcnn": {"epochs": 40, "steps_per_epoch": 500, "threads": 1}},
+    budgets={"vqvae": {"epochs": 24, "steps_per_epoch": 1000},
+             "pixelcnn": {"epochs": 10, "steps_per_epoch": 500, "threads": 2}},
+    weights={"vqvae": "vqvae-freeway.pt", "pixelcnn": "pixelcnn-freeway.pt"},
     description="Atari Freeway's: 40 × 38 patch-local codes from 640, the prior over lane strips of 4 × 38",
 ))  # fmt: skip
