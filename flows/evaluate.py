@@ -39,6 +39,7 @@ from dynplan.evaluation.cases import (
     VALIDATION_SEED_START,
     Case,
     CasePlan,
+    road_models,
 )
 from dynplan.evaluation.protocol import pending, run_cases
 from dynplan.evaluation.provenance import begin_run
@@ -47,7 +48,6 @@ from dynplan.evaluation.table import aggregate, load_results, render_markdown, w
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
-from dynplan.models.registry import WORLD_MODELS
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.artifacts import ProgressArtifact, publish_table1
@@ -134,7 +134,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=list(TECHNIQUES),
                         metavar="TECHNIQUE", help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
                         + " (default: oracle zero random)")  # fmt: skip
-    parser.add_argument("--models", nargs="+", default=["default"], choices=list(WORLD_MODELS),
+    parser.add_argument("--models", nargs="+", default=["default"], choices=road_models(),
                         help="world-model configurations for the learned techniques ("
                         + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model) + ")")  # fmt: skip
     parser.add_argument("--agent-speeds", nargs="+", type=float, choices=AGENT_SPEEDS, default=list(AGENT_SPEEDS),
@@ -166,7 +166,7 @@ def _parser() -> argparse.ArgumentParser:
                         help=f"recorded worlds per lockstep batch, in [1, 10000] (default {BATCH})")  # fmt: skip
     parser.add_argument("--table1", action="store_true", help="play the complete Table 1: "
                         + "; ".join(f"{speed * 2:g}x: {' '.join(names)}" for speed, names in TABLE1.items())
-                        + f" (learned ones with {' and '.join(WORLD_MODELS)}); instead of --techniques, --models "
+                        + f" (learned ones with {' and '.join(road_models())}); instead of --techniques, --models "
                         "and --agent-speeds")  # fmt: skip
     parser.add_argument("--device", default="cpu", help=field_help(AgentSpec, "device"))
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")

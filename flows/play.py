@@ -37,7 +37,7 @@ from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.agent import AgentSpec
-from dynplan.evaluation.cases import AGENT_SPEEDS, VALIDATION_SEED_START
+from dynplan.evaluation.cases import AGENT_SPEEDS, VALIDATION_SEED_START, road_models
 from dynplan.evaluation.protocol import world_agent
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra
@@ -46,7 +46,6 @@ from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.logs.recording import read_recorded_log
 from dynplan.models.checkpoint import CheckpointError
-from dynplan.models.registry import WORLD_MODELS
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.play import HORIZONS, PlayState
 from dynplan.render import error_image, upscale
@@ -201,7 +200,7 @@ def _parser() -> CommandParser:
                         help="play the world recorded in this episode log (.mcap)")  # fmt: skip
     parser.add_argument("--agent-speed", type=float, default=1.0, choices=AGENT_SPEEDS,
                         help="1.0 is the 2x agent, 0.5 the 1x")  # fmt: skip
-    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS),
+    parser.add_argument("--model", default="default", choices=road_models(),
                         help="the world model of the imagination and of a learned planner")  # fmt: skip
     parser.add_argument("--technique", default="oracle", choices=[n for n, t in TECHNIQUES.items() if t.search],
                         help="the planner that plays when you press P or pass --watch")  # fmt: skip

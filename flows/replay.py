@@ -19,13 +19,12 @@ from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
-from dynplan.evaluation.cases import AGENT_SPEEDS
+from dynplan.evaluation.cases import AGENT_SPEEDS, road_models
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra, require
 from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
-from dynplan.models.registry import WORLD_MODELS
 from dynplan.paths import PathArgument, PathKind, check_output
 from flows.cli import named_world, run
 
@@ -61,7 +60,7 @@ def _parser() -> argparse.ArgumentParser:
         + ", ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
         + "), or model: the learned model with --samples and --futures (default oracle)",
     )
-    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS), help="learned model configuration")
+    parser.add_argument("--model", default="default", choices=road_models(), help="learned model configuration")
     for name in ("samples", "futures", "rollout_steps", "playouts"):
         parser.add_argument(f"--{name.replace('_', '-')}", type=bounded(AgentSpec, name),
                             default=AgentSpec.model_fields[name].default, help=field_help(AgentSpec, name))  # fmt: skip

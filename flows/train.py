@@ -228,7 +228,7 @@ def _world_of(store: str) -> str:
     """The world of `store`'s episodes, or the road where it is no readable store (`_checked` says why)."""
     try:
         return store_world(dict(zarr.open_group(store, mode="r", use_consolidated=False).attrs))
-    except Exception:
+    except (OSError, ValueError, KeyError, zarr.errors.BaseZarrError):  # named by the checks that follow
         return DEFAULT_WORLD
 
 

@@ -117,7 +117,7 @@ def test_freeway_splits_by_mode_and_the_road_by_its_seeds_hash():
 
 def test_each_world_has_its_default_configuration():
     assert default_model("road") == "default" and default_model("freeway") == "freeway"
-    assert models_of("freeway") == ["freeway"] and models_of("road")[0] == "default"
+    assert models_of("freeway") == ["freeway"] and models_of("road") == ["paper", "default"]
     spec = world_model_spec("freeway")
     assert spec.world == "freeway" and spec.prior == PIXELCNN_PRESETS["freeway"]
 
@@ -188,3 +188,16 @@ def test_the_priors_validation_generates_with_the_weights_it_has_now():
     everywhere = tokenizer.decode(np.full((3, 40, 38), code))
     assert after["val_next_pixel_acc"] == pytest.approx(frame_errors(frames, everywhere, "freeway")["pixel_acc"])
     assert images()["next_frame"].shape[0] > 0
+
+
+def test_a_model_of_freeway_takes_no_caution_and_no_held_out_mode_trains_it(freeway_store):
+    from dynplan.models.caution import Caution
+    from dynplan.models.world_model import LearnedWorldModel
+
+    tokenizer = VQVAE(PRESETS["freeway"])
+    prior = ConditionalPixelCNN(PIXELCNN_PRESETS["freeway"].model_copy(update={"channels": 8, "layers": 2}))
+    with pytest.raises(ValueError, match=r"caution \{'margin': 1\} reads the road's obstacle values; a model of the "
+                                         "freeway world takes none"):  # fmt: skip
+        LearnedWorldModel(tokenizer, prior, caution=Caution(margin=1))
+    every = FrameDataset(freeway_store / "frames.zarr", "all")
+    assert every.seeds[every.episodes].tolist() == [0, 5]  # mode 4 is held out of every split

@@ -5,6 +5,7 @@ episode and resumes from them."""
 
 from __future__ import annotations
 
+import itertools
 import json
 
 import numpy as np
@@ -139,3 +140,11 @@ def test_the_lab_predictor_moves_each_lane_at_its_mean_speed():
     starts = [int(np.flatnonzero(frame[20] == 136)[0]) for frame in imagined]
     assert starts == [46, 48, 49, 50]  # 45 + 1.25, 2.5, 3.75, 5 rounded half up
     assert (imagined[:, 0:16] == ROAD_VALUES[0]).all()
+
+
+def test_the_oracle_searches_the_true_lanes_of_each_step():
+    episode = FreewayEpisode(mode=0, noop_start=3)
+    turns = list(itertools.islice(evaluation.play_turns("oracle", episode, ChickenSearch(horizon=3)), 24))
+    recording = evaluation.record_mode(0).frames
+    for t in (0, 17, 23):  # past the frames a learned agent keeps of what it observed
+        np.testing.assert_array_equal(turns[t].frames, recording[3 + t : 3 + t + 4])

@@ -27,6 +27,7 @@ import numpy as np
 from dynplan.cli import CommandParser, run_command
 from dynplan.data.collect import log_path
 from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import ROLLOUT_STEPS, Case
 from dynplan.evaluation.protocol import case_agent
@@ -35,7 +36,7 @@ from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import read_episode_log
 from dynplan.models.caution import Caution
-from dynplan.models.registry import WORLD_MODELS
+from dynplan.models.registry import models_of
 from dynplan.planning.episode import run_episode
 
 CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
@@ -151,7 +152,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser = CommandParser(prog="python -m dynplan.analysis.deaths", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--technique", default="samples5", choices=[n for n, t in TECHNIQUES.items() if t.search])
-    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS),
+    parser.add_argument("--model", default="default", choices=models_of(DEFAULT_WORLD),
                         help="world model of a learned technique")  # fmt: skip
     parser.add_argument("--agent-speed", type=float, default=1.0)
     parser.add_argument("--rollout-steps", type=int, nargs="+", default=list(ROLLOUT_STEPS))

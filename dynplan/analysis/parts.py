@@ -28,13 +28,14 @@ import numpy as np
 from dynplan.cli import CommandParser, run_command
 from dynplan.env.config import FREE, GOAL_VALUE, RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import EVAL_SEED_START, Case
 from dynplan.evaluation.protocol import case_agent
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import write_bytes_atomic
 from dynplan.models.caution import Caution
-from dynplan.models.registry import WORLD_MODELS
+from dynplan.models.registry import models_of
 from dynplan.planning.episode import run_episodes
 from dynplan.planning.forward import Prediction
 
@@ -118,7 +119,7 @@ def main(argv: list[str] | None = None) -> dict:
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--technique", default="samples5",
                         choices=[n for n, t in TECHNIQUES.items() if t.world_model and t.search])  # fmt: skip
-    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS))
+    parser.add_argument("--model", default="default", choices=models_of(DEFAULT_WORLD))
     parser.add_argument("--agent-speed", type=float, default=0.5)
     parser.add_argument("--rollout-steps", type=int, nargs="+", default=[3])
     parser.add_argument("--model-dir", help="learned world models under MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "

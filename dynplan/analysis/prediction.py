@@ -14,9 +14,10 @@ from pathlib import Path
 from dynplan.analysis.context_bound import ContextBoundModel
 from dynplan.cli import CommandParser, run_command
 from dynplan.env.road import World
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.prediction import errors_by_horizon, figure1, plot_errors
-from dynplan.models.registry import WORLD_MODELS
+from dynplan.models.registry import models_of
 from dynplan.planning.forward import ForwardModel
 
 
@@ -49,7 +50,7 @@ def write_curves(path: str | os.PathLike, curves: dict, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = CommandParser(prog="python -m dynplan.analysis.prediction", description=__doc__)
-    parser.add_argument("--model", default="default", choices=list(WORLD_MODELS))
+    parser.add_argument("--model", default="default", choices=models_of(DEFAULT_WORLD))
     parser.add_argument("--samples", type=int, nargs="*", default=[0, 5],
                         help="decoder samples (0: Mid; none given: no such variants)")  # fmt: skip
     parser.add_argument("--futures", type=int, nargs="*", default=[], help="also: code futures sampled from the prior")

@@ -18,10 +18,10 @@ import numpy as np
 import torch
 
 from dynplan.bench.timing import median_seconds
+from dynplan.evaluation.cases import road_models
 from dynplan.models.batched import BLOCK_ROWS, _pick
 from dynplan.models.device import one_thread
 from dynplan.models.generation import draw_rows
-from dynplan.models.registry import WORLD_MODELS
 from dynplan.models.world_model import load_world_model
 
 #: Frames decoded per timed call: one lockstep step's 5 futures × 10 frames for a dozen episodes.
@@ -94,4 +94,4 @@ def bench_decoding(repeats: int = 5, samples: int = 5) -> dict[str, dict[str, fl
     """Per world-model configuration: median ms per frame (decode) and per position of `BLOCK_ROWS` rows (draw)."""
     generator = torch.Generator().manual_seed(0)
     with torch.inference_mode(), one_thread():
-        return {name: _bench_configuration(name, repeats, samples, generator) for name in WORLD_MODELS}
+        return {name: _bench_configuration(name, repeats, samples, generator) for name in road_models()}

@@ -13,6 +13,7 @@ import torch
 from dynplan.data.patches import tiles
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models.registry import WORLD_MODELS
 from dynplan.models.vqvae import VQVAE
 
@@ -46,7 +47,7 @@ def bench_vqvae(steps: int = 20, repeats: int = 3, threads: int = 2) -> dict[str
     torch.set_num_threads(threads)
     frames = torch.from_numpy(generate_world(RoadConfig(agent_speed=0.5), 0).frames.copy())
     results = {}
-    for name, config in ((name, spec.tokenizer) for name, spec in WORLD_MODELS.items()):
+    for name, config in ((name, spec.tokenizer) for name, spec in WORLD_MODELS.items() if spec.world == DEFAULT_WORLD):
         model = VQVAE(config)
         optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
         unit = "patches" if config.codebook_fit == "contents" else "frames"

@@ -45,7 +45,8 @@ def split_of(entry: WorldEntry, seeds: np.ndarray, val_fraction: float) -> tuple
 
 
 class _EpisodeArray(Dataset):
-    """Shared loading: which episodes of `array` are in the split, each read once on first use."""
+    """Shared loading: which episodes of `array` are in the split, each read once on first use. "all" is every
+    episode a model may see: the training and validation episodes, not those of the world's held out."""
 
     def __init__(self, store: str | os.PathLike, split: Split = "train", val_fraction: float = 0.1,
                  array: str = "frames"):  # fmt: skip
@@ -59,8 +60,7 @@ class _EpisodeArray(Dataset):
         n_episodes = min(n_episodes, int(self.array.attrs.get("episodes", n_episodes)))  # e.g. codes not yet built
         self.seeds = read(self.store, group["seed"], slice(0, n_episodes))
         validation, held_out = split_of(world(store_world(dict(group.attrs))), self.seeds[:n_episodes], val_fraction)
-        train = ~validation & ~held_out
-        keep = {"train": train, "validation": validation, "all": np.ones(n_episodes, bool)}[split]
+        keep = {"train": ~validation & ~held_out, "validation": validation, "all": ~held_out}[split]
         self.episodes = np.nonzero(keep)[0]
         self.n_frames = self.array.shape[1]
         self._cache: dict[int, np.ndarray] = {}

@@ -16,11 +16,12 @@ from pydantic import Field, field_validator, model_validator
 from dynplan.config import Config, ConfigError
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, Technique, learned_technique, technique
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.device import check_device
-from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
+from dynplan.models.registry import caution_for, models_of, world_model_spec
 from dynplan.models.world_model import world_model_parts, world_model_paths
 from dynplan.planning.forward import ForwardModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
@@ -70,8 +71,8 @@ class AgentSpec(Config):
             raise ValueError(f"samples and futures are technique {self.technique!r}'s own; give them with "
                              f"technique {LEARNED!r}")  # fmt: skip
         if self.plans_with.world_model:
-            if self.model not in WORLD_MODELS:
-                raise ValueError(f"model must be one of {sorted(WORLD_MODELS)}, got {self.model!r}")
+            if self.model not in models_of(DEFAULT_WORLD):
+                raise ValueError(f"model must be one of {sorted(models_of(DEFAULT_WORLD))}, got {self.model!r}")
             try:
                 self.own_caution.check_fits(world_model_spec(self.model).tokenizer.local, self.model)
             except ConfigError as error:

@@ -10,9 +10,16 @@ from pydantic import Field, model_validator
 
 from dynplan.config import Config
 from dynplan.env.config import RoadConfig
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.techniques import technique
-from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.models.registry import models_of, world_model_spec
 from dynplan.planning.mcts import MCTSConfig
+
+
+def road_models() -> list[str]:
+    """The world-model configurations of the road, the world of Table 1's cases, as registered."""
+    return models_of(DEFAULT_WORLD)
+
 
 #: The evaluation episodes' seeds: a range of their own, far from training seeds (which start at 0).
 EVAL_SEED_START = 1_000_000
@@ -45,8 +52,8 @@ class Case:
         if needs != (self.model is not None):
             uses = "needs a world model" if needs else "does not use a world model"
             raise ValueError(f"technique {self.technique!r} {uses} (got model={self.model!r})")
-        if self.model is not None and self.model not in WORLD_MODELS:
-            raise ValueError(f"model must be one of {sorted(WORLD_MODELS)}, got {self.model!r}")
+        if self.model is not None and self.model not in road_models():
+            raise ValueError(f"model must be one of {sorted(road_models())}, got {self.model!r}")
 
     @property
     def group(self) -> str:
@@ -88,7 +95,7 @@ def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
 def table1_cases(episodes: int = EVAL_EPISODES, first_seed: int = EVAL_SEED_START,
                  rollout_steps: tuple[int, ...] = ROLLOUT_STEPS) -> list[Case]:  # fmt: skip
     """Every case of the complete Table 1 (`TABLE1`), learned techniques with every world-model configuration."""
-    models = tuple(WORLD_MODELS)
+    models = tuple(road_models())
     return [case for speed, names in TABLE1.items()
             for case in cases(list(names), (speed,), rollout_steps, episodes, first_seed, models)]  # fmt: skip
 
@@ -129,7 +136,7 @@ class CasePlan(Config):
         """Each (technique, world-model configuration) the plan plays (None: a technique without one), in Table 1's
         order."""
         table = TABLE1.items() if self.table1 else [(speed, self.techniques) for speed in self.agent_speeds]
-        models = tuple(WORLD_MODELS) if self.table1 else self.models
+        models = tuple(road_models()) if self.table1 else self.models
         names = dict.fromkeys(name for _, names in table for name in names)
         return [(name, model if technique(name).world_model else None) for name in names
                 for model in (models if technique(name).world_model else (None,))]  # fmt: skip

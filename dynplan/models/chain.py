@@ -70,20 +70,27 @@ def _greedy_next(prior: ConditionalPixelCNN, context: torch.Tensor, spec: ChainS
     """The greedy next grid of each row of `context` (B, context, h, w) on the compiled kernel's path, each
     context's generated once and kept: the greedy chain is a function of its context, so a decision whose newest
     observed grid is the one the last decision predicted first continues that decision's chain, and only its last
-    grid is new. The kernel generates each row on its own, so a kept grid is the one it would generate again."""
+    grid is new. A kept grid is the one generated again up to float summation order (the conditioning is one
+    convolution over the rows generated together). Priors of strips only (`_keeps`)."""
     memo = _MEMOS.setdefault(prior, OrderedDict())
     keys = [(row.shape, row.numpy().tobytes()) for row in context]
     missing = list(dict.fromkeys(key for key in keys if key not in memo))
     if missing:
         first = {key: i for i, key in enumerate(keys)}
         grids, _ = _next_grids(prior, context[[first[key] for key in missing]], None, spec)
-        memo.update(zip(missing, grids, strict=True))
+        memo.update(zip(missing, grids.clone(), strict=True))
     out = torch.stack([memo[key] for key in keys])
     for key in keys:
         memo.move_to_end(key)
     while len(memo) > GREEDY_MEMO:
         memo.popitem(last=False)
     return out
+
+
+def _keeps(prior: ConditionalPixelCNN) -> bool:
+    """Whether `prior`'s greedy grids are kept (`_greedy_next`): a prior of strips', whose lanes a decision mostly
+    predicted right; the road's committed evaluations generate every grid."""
+    return prior.config.strip_rows is not None
 
 
 def forget_greedy() -> None:
@@ -147,7 +154,7 @@ def _chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[
             pairs = zip(spec.streams, stream_lengths, strict=True)
             uniforms = torch.cat([draw_uniforms(count, h, w, SAMPLED, generator)
                                   for (generator, count), n in pairs if n > step])  # fmt: skip
-        if uniforms is None and spec.table is None and _kernel_path(spec, len(live)):
+        if uniforms is None and spec.table is None and _keeps(prior) and _kernel_path(spec, len(live)):
             grid, expected = _greedy_next(prior, context[rows], spec), None
         else:
             grid, expected = _next_grids(prior, context[rows], uniforms, spec)

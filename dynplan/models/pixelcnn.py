@@ -243,6 +243,8 @@ def to_strips(grids: torch.Tensor, rows: int | None) -> torch.Tensor:
 def from_strips(strips: torch.Tensor, grids: int) -> torch.Tensor:
     """`to_strips` undone: strips (grids · S, n, rows, w) → grids (grids, n, S · rows, w)."""
     total, n, rows, w = strips.shape
+    if grids < 1 or total % grids:
+        raise ValueError(f"{total} strips are not the strips of {grids} grids")
     per = total // grids
     return strips.reshape(grids, per, n, rows, w).transpose(1, 2).reshape(grids, n, per * rows, w)
 

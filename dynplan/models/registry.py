@@ -69,9 +69,8 @@ def world_model_spec(name: str) -> WorldModelSpec:
 
 
 def models_of(world_name: str) -> list[str]:
-    """The configurations that model world `world_name`, the world's default first."""
-    names = [name for name, spec in WORLD_MODELS.items() if spec.world == world_name]
-    return sorted(names, key=lambda name: name != default_model(world_name))
+    """The configurations that model world `world_name`, in the order they were registered."""
+    return [name for name, spec in WORLD_MODELS.items() if spec.world == world_name]
 
 
 def default_model(world_name: str) -> str:

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models import checkpoint
 from dynplan.models.caution import Caution, merge_samples, unsure_obstacles, widen_obstacles
 from dynplan.models.chain import ChainSpec, chain
@@ -92,6 +93,9 @@ class LearnedWorldModel(ForwardModel):
                 raise ValueError(f"{name} must be an integer in [0, {MAX_DRAWS}]; got {value!r}")
         self.caution = Caution() if caution is None else caution
         self.caution.check_fits(tokenizer.config.local, tokenizer.config.name)
+        if self.caution.recorded() and tokenizer.config.world != DEFAULT_WORLD:
+            raise ValueError(f"caution {self.caution.recorded()} reads the road's obstacle values; a model of the "
+                             f"{tokenizer.config.world} world takes none")  # fmt: skip
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
         self.samples, self.futures, self.seed = samples, futures, seed
         shown = "".join(f", {key}={value}" for key, value in self.caution.recorded().items())

@@ -17,10 +17,11 @@ from typing import Any
 from pydantic import Field, model_validator
 
 from dynplan.config import Config
+from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.cases import AGENT_SPEEDS, ROLLOUT_STEPS
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.pixelcnn import PixelCNNConfig
-from dynplan.models.registry import WORLD_MODELS, world_model_spec
+from dynplan.models.registry import models_of, world_model_spec
 from dynplan.models.vqvae import VQVAEConfig
 from dynplan.training.loop import TrainBudget
 
@@ -64,8 +65,8 @@ class PipelinePreset(Config):
 
     @model_validator(mode="after")
     def _check(self) -> PipelinePreset:
-        if not set(self.models) <= set(WORLD_MODELS):
-            raise ValueError(f"models must be among {sorted(WORLD_MODELS)}, got {self.models}")
+        if not set(self.models) <= set(models_of(DEFAULT_WORLD)):
+            raise ValueError(f"models must be among {sorted(models_of(DEFAULT_WORLD))}, got {self.models}")
         for model in self.models:
             VQVAEConfig(**{**world_model_spec(model).tokenizer.model_dump(), **self.vqvae_plan(model).overrides})
             self.pixelcnn_config(model)

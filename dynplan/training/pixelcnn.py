@@ -19,10 +19,10 @@ import zarr
 
 from dynplan.data.datasets import WindowDataset
 from dynplan.data.history import context_indices, first_target
-from dynplan.models.chain import ChainSpec, chain
 from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
+from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig, to_strips
+from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig, from_strips, to_strips
 from dynplan.models.vqvae import VQVAE
 from dynplan.render import comparison_columns
 from dynplan.training import loop
@@ -112,10 +112,11 @@ def _validation_scores(model: ConditionalPixelCNN, tokenizer: VQVAE, validation:
                 out = model(to_strips(context, rows).to(device), to_strips(target[:, None], rows)[:, 0].to(device))
                 loss += out.loss.item() * len(target)
                 accuracy += out.accuracy.item() * len(target)
-            # Generation is the planner's CPU path: score that, on a copy of the weights as they are now (generation
-            # lays a prior's weights out, and keeps its greedy grids, once per prior object).
-            on_cpu = copy.deepcopy(model).cpu()
-            predicted = chain(on_cpu, val_context[generated], [1] * len(generated), ChainSpec())[0][:, 0]
+            # Generation is the planner's CPU path (numba rows): score that, on a CPU copy when training elsewhere,
+            # with the weights laid out afresh (a world model's chains keep them once per prior object).
+            on_cpu = model if device.type == "cpu" else copy.deepcopy(model).cpu()
+            strips = generate_fast(on_cpu, to_strips(val_context[generated], rows))
+            predicted = from_strips(strips[:, None], len(generated))[:, 0]
             frames = tokenizer.decode(predicted).numpy()
         model.train()
         shown["true"], shown["predicted"] = val_frames[generated[:6]], frames[:6]
