@@ -3,8 +3,8 @@
 Plays `--episodes` NOOP starts (drawn from `--seed`) of each `--modes` game mode with each technique (`oracle`:
 the true future, `learned`: the future Freeway's world model imagines, `zero`: no cars after the frame now, `up`:
 always UP, `random`), writing one result file per episode under `RESULTS/RUN/` and skipping the episodes the run
-holds, so an interrupted evaluation resumes; then prints each technique's mean score ± std, knocks an episode and median decision milliseconds, and writes them to
-`RESULTS/RUN/summary.json`.
+holds, so an interrupted evaluation resumes; then prints each technique's mean score ± std, knocks an episode and
+median decision milliseconds, and writes them to `RESULTS/RUN/summary.json`.
 """
 
 from __future__ import annotations
