@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from dynplan.env.colors import colorize, palette
-from dynplan.env.config import FREE, GOAL_VALUE
+from dynplan.env.config import GOAL_VALUE
+from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.files import write_bytes_atomic
 
 
@@ -40,13 +41,13 @@ FALSE_POSITIVE = np.array([40, 90, 255], np.uint8)  # free predicted as obstacle
 PREDICTED_GOAL = np.array([255, 150, 0], np.uint8)  # orange, drawn over the true goal (yellow)
 
 
-def error_image(true: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-    """The paper's Figure 1 error panel for one frame pair (H, W) → RGB (H, W, 3), row 0 at the bottom:
-    false negatives red, false positives blue, true goal yellow, predicted goal orange (orange alone = exact)."""
-    colours = palette()
-    true_obstacle = (true != FREE) & (true != GOAL_VALUE)
-    predicted_obstacle = (predicted != FREE) & (predicted != GOAL_VALUE)
-    image = np.broadcast_to(colours[FREE], (*true.shape, 3)).copy()
+def error_image(true: np.ndarray, predicted: np.ndarray, world_name: str = DEFAULT_WORLD) -> np.ndarray:
+    """The paper's Figure 1 error panel for one frame pair (H, W) of the world `world_name` → RGB (H, W, 3), row 0
+    at the bottom: false negatives red, false positives blue, true goal yellow, predicted goal orange (orange alone
+    = exact); obstacles are the values that are not the world's clear ground."""
+    colours, clear = palette(), world(world_name).clear
+    true_obstacle, predicted_obstacle = ~np.isin(true, clear), ~np.isin(predicted, clear)
+    image = np.broadcast_to(colours[world(world_name).background], (*true.shape, 3)).copy()
     image[true_obstacle & predicted_obstacle] = colours[true[true_obstacle & predicted_obstacle]]
     image[true_obstacle & ~predicted_obstacle] = FALSE_NEGATIVE
     image[~true_obstacle & predicted_obstacle] = FALSE_POSITIVE

@@ -10,12 +10,14 @@ import json
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from dynplan.cli import InputError
 from dynplan.config import ConfigError
 from dynplan.env.freeway import BOTTOM_Y, ROAD_VALUES, Chicken, FreewayEpisode, chicken_step
 from dynplan.evaluation import freeway as evaluation
 from dynplan.evaluation.freeway import FreewayPlan, FreewayResult, evaluate_episode, read_run, summarise
+from dynplan.evaluation.freeway_replay import GIF_STEPS
 from dynplan.planning.chicken import ChickenSearch, plan_chicken
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
@@ -116,16 +118,19 @@ def test_a_replay_log_holds_the_modes_lanes_and_the_chickens_track(tmp_path, pre
     logs = tmp_path / "logs"
     log = record_episode(logs, 0, None, None, "freeway").path
     result = main([log, "--world", "freeway", "--noop-start", "4", "--technique", "zero", "--horizon", "2",
-                   "--out", str(tmp_path / "zero.mcap")])  # fmt: skip
+                   "--out", str(tmp_path / "zero.mcap"), "--gif", str(tmp_path / "zero.gif")])  # fmt: skip
     replay = read_episode_log(tmp_path / "zero.mcap")
     assert replay.metadata["kind"] == "agent" and replay.n_frames == 2049 and replay.entry.name == "freeway"
     np.testing.assert_array_equal(replay.agent.t, np.arange(4, 2049))
     assert replay.agent.reward.sum() == result["score"] >= 20 and replay.agent.outcome[-1] == "timeout"
     assert sorted(replay.imagined)[0] == 4 and replay.imagined[4].shape == (2, 154, 152)
+    with Image.open(tmp_path / "zero.gif") as gif:  # the first steps: now | true | searched | error, k = 2 on
+        assert gif.n_frames == GIF_STEPS and gif.size == (4 * 152 + 3, 154)
     short = record_episode(tmp_path / "short", 1, None, 100, "freeway").path
-    with pytest.raises(SystemExit) as exit_:
-        main([short, "--world", "freeway"])
-    assert exit_.value.code == 2
+    for argv in ([short, "--world", "freeway"], [log, "--world", "freeway", "--technique", "up", "--gif", "up.gif"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(argv)
+        assert exit_.value.code == 2
 
 
 def test_the_lab_predictor_moves_each_lane_at_its_mean_speed():

@@ -4,7 +4,9 @@ start, its pose, actions, rewards and view at each step, and the lanes the plann
 The replay log holds the mode's whole recording (`/world/frame` from the game's start) so that its world is the
 recorded log's; the chicken's track starts at frame n, the episode's NOOP start. Its pose is the middle of the
 chicken's sprite (`chicken_row`, `CHICKEN_COLUMN`: below row 0 on the bottom sidewalk); a step's reward is 1 at a
-crossing, and the last step's outcome is "timeout" (the game's end).
+crossing, and the last step's outcome is "timeout" (the game's end). A GIF may show the replay's first steps: the
+lanes now with the chicken beside the true lanes k steps on, the lanes the planner searched for then (a learned
+agent's imagined ones) and their error panel.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dynplan.env.colors import colorize
 from dynplan.env.freeway import CHICKEN_COLUMN, Chicken, FreewayEpisode, chicken_row
 from dynplan.evaluation.freeway import FreewayResult, Turn, play_turns
 from dynplan.logs.format import AgentTrack
@@ -22,6 +25,10 @@ from dynplan.logs.recording import read_recorded_log
 from dynplan.logs.writer import write_episode_log
 from dynplan.planning.chicken import ChickenSearch
 from dynplan.planning.forward import ForwardModel
+from dynplan.render import error_image, side_by_side, write_gif
+
+#: Steps of a replay its GIF shows, from the episode's start (the whole game would be minutes of GIF).
+GIF_STEPS = 150
 
 
 def replayable(log: str | os.PathLike) -> EpisodeLog:
@@ -57,13 +64,31 @@ def track(turns: list[Turn], noop_start: int) -> AgentTrack:
                       reward=np.array([turn.step.reward for turn in turns]), outcome=outcomes)  # fmt: skip
 
 
+def replay_gif(path: str | os.PathLike, turns: list[Turn], frames: np.ndarray, noop_start: int,
+               steps: int = GIF_STEPS) -> Path:  # fmt: skip
+    """A GIF of the first `steps` turns (a planner's) of an episode of the recording `frames` starting at
+    `noop_start`: the lanes now with the chicken | the true lanes k steps on | those the planner searched | error."""
+    panels = []
+    for i, turn in enumerate(turns[:steps]):
+        if turn.frames is None:
+            raise ValueError("a replay's GIF shows the lanes a planner searched; this technique does not plan")
+        t, k = noop_start + i, len(turn.frames) - 1
+        truth, searched = frames[min(t + k, len(frames) - 1)], turn.frames[k]
+        panels.append(side_by_side([colorize(frames[t], chicken_position(turn.chicken)), colorize(truth),
+                                    colorize(searched), error_image(truth, searched, "freeway")]))  # fmt: skip
+    return write_gif(path, panels, fps=15, scale=1)
+
+
 def replay_freeway(log: str | os.PathLike, technique: str, noop_start: int, search: ChickenSearch,
-                   out: str | os.PathLike, model: ForwardModel | None = None) -> FreewayResult:  # fmt: skip
+                   out: str | os.PathLike, model: ForwardModel | None = None,
+                   gif: str | os.PathLike | None = None) -> FreewayResult:  # fmt: skip
     """Play the episode of `log`'s mode with NOOP start `noop_start` by `technique` (with `model` when learned) and
-    write its replay to `out`."""
+    write its replay to `out` (and, with `gif`, its first steps' GIF there)."""
     recorded = replayable(log)
     episode = FreewayEpisode(mode=recorded.seed, noop_start=noop_start)
     turns = list(play_turns(technique, episode, search, model=model))
+    if gif is not None:
+        replay_gif(gif, turns, recorded.world().frames, noop_start)
     imagined = {noop_start + i: turn.frames[1:] for i, turn in enumerate(turns) if turn.frames is not None}
     write_episode_log(out, recorded.world(), agent=track(turns, noop_start), imagined=imagined or None)
     knocks = sum(turn.chicken.timer == 0 and turn.step.chicken.knocked for turn in turns)
