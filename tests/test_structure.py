@@ -1,7 +1,7 @@
 """The shape of the code and the tree: in the product (all but the lab, `dynplan/analysis` and `dynplan/bench`) no
 function is longer than 60 lines; nowhere does one take more than 8 parameters (ruff's PLR0913, which the suite
 runs with the rest of the lint and the formatter's check); the docs a newcomer reads stay short; the tracked tree
-stays under 30 MB."""
+stays under 32 MB."""
 
 import ast
 import shutil
@@ -50,10 +50,11 @@ def test_the_docs_a_newcomer_reads_stay_short(path, limit):
     assert len((ROOT / path).read_bytes()) <= limit
 
 
-def test_the_tracked_tree_stays_under_30_mb():
-    """Weights of candidates that were not adopted leave the tree (their records stay); the store's rows are compact."""
+def test_the_tracked_tree_stays_under_32_mb():
+    """Weights of candidates that were not adopted leave the tree (their records stay); the store's rows are compact.
+    Each world's adopted weights stay: the road's two configurations and Freeway's (1.3 MB)."""
     if shutil.which("git") is None or not (ROOT / ".git").exists():
         pytest.skip("not a git checkout: no list of tracked files")
     listed = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
     sizes = {name: (ROOT / name).stat().st_size for name in listed.decode().split("\0") if (ROOT / name).is_file()}
-    assert sum(sizes.values()) <= 30_000_000, sorted(sizes.items(), key=lambda item: -item[1])[:5]
+    assert sum(sizes.values()) <= 32_000_000, sorted(sizes.items(), key=lambda item: -item[1])[:5]
