@@ -163,7 +163,7 @@ def test_a_learned_agent_plays_the_game_with_a_model_trained_on_a_freeway_store(
     turns = list(itertools.islice(play_turns("learned", episode, ChickenSearch(horizon=3), model=model), 6))
     assert all(turn.frames.shape == (4, 154, 152) and turn.decision_ms > 0 for turn in turns)
     assert set(np.unique(np.stack([turn.frames for turn in turns]))) <= set(PRESETS["freeway"].values)
-    with pytest.raises(ValueError, match="a world model is what the learned technique, and it alone, plans with"):
+    with pytest.raises(ValueError, match="^technique .oracle. takes no world model$"):
         next(play_turns("oracle", episode, ChickenSearch(horizon=3), model=model))
 
 

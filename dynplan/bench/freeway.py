@@ -15,6 +15,7 @@ import itertools
 import time
 
 import numpy as np
+import torch
 
 from dynplan.bench.timing import pin_to_one_core
 from dynplan.env.freeway import Chicken, FreewayEpisode, FreewayGame, chicken_frames, record_mode, step_frames
@@ -79,6 +80,7 @@ def bench_freeway() -> dict[str, dict[str, float]]:
 def _learned(k: int = 8) -> dict[str, dict[str, float]]:
     """The learned agent's decisions (prediction and search) over the game's first steps: as it plays, and with
     every kept chain dropped before each decision."""
+    torch.set_num_threads(1)  # one core: the prior's kernel runs its grids on torch's threads
     model, search, out = world_model_for("learned"), ChickenSearch(horizon=k), {}
     for case, keep in (("learned_k8", True), ("learned_k8_fresh", False)):
         times, score = [], 0.0

@@ -241,6 +241,16 @@ def chicken_frames(chicken: Chicken, action: int, drawn: Sequence[np.ndarray]) -
     return Chicken(y, timer), 0.0
 
 
+def chicken_mask(shape: tuple[int, int], y: int) -> np.ndarray:
+    """Where the chicken's sprite at height `y` lies in a lane frame of `shape`: (H, W) bool (none of it on the
+    bottom sidewalk, below the frame)."""
+    mask, low = np.zeros(shape, bool), y + SPRITE_ROWS[0]
+    rows = np.arange(low, low + 8)
+    inside = (rows >= 0) & (rows < shape[0])
+    mask[rows[inside], SPRITE_COLUMNS] = _sprites()[y][inside]
+    return mask
+
+
 def sprite_hit(frame: np.ndarray, y: int) -> bool:
     """Whether a car's pixel of the lane `frame` meets the chicken's sprite at height `y`."""
     low, high = y + SPRITE_ROWS[0], y + SPRITE_ROWS[1]

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from dynplan.env.colors import colorize
-from dynplan.env.freeway import CHICKEN_COLUMN, Chicken, FreewayEpisode, chicken_row
+from dynplan.env.freeway import CHICKEN_COLUMN, Chicken, FreewayEpisode, chicken_mask, chicken_row
 from dynplan.evaluation.freeway import FreewayResult, Turn, play_turns
 from dynplan.logs.format import AgentTrack
 from dynplan.logs.reader import EpisodeLog, LogError
@@ -74,8 +74,9 @@ def replay_gif(path: str | os.PathLike, turns: list[Turn], frames: np.ndarray, n
             raise ValueError("a replay's GIF shows the lanes a planner searched; this technique does not plan")
         t, k = noop_start + i, len(turn.frames) - 1
         truth, searched = frames[min(t + k, len(frames) - 1)], turn.frames[k]
-        panels.append(side_by_side([colorize(frames[t], chicken_position(turn.chicken)), colorize(truth),
-                                    colorize(searched), error_image(truth, searched, "freeway")]))  # fmt: skip
+        now = colorize(frames[t])
+        now[np.flip(chicken_mask(frames[t].shape, turn.chicken.y), axis=0)] = 255  # the chicken in white
+        panels.append(side_by_side([now, colorize(truth), colorize(searched), error_image(truth, searched, "freeway")]))
     return write_gif(path, panels, fps=15, scale=1)
 
 
