@@ -88,8 +88,8 @@ def _greedy_next(prior: ConditionalPixelCNN, context: torch.Tensor, spec: ChainS
 
 
 def _keeps(prior: ConditionalPixelCNN) -> bool:
-    """Whether `prior`'s greedy grids are kept (`_greedy_next`): a prior of strips', whose lanes a decision mostly
-    predicted right; the road's committed evaluations generate every grid."""
+    """Whether `prior`'s greedy grids are kept (`_greedy_next`): a strip prior's are, each strip's by its own
+    context (a decision mostly predicted each lane right); the road's committed evaluations generate every grid."""
     return prior.config.strip_rows is not None
 
 

@@ -154,28 +154,14 @@ PRESETS: dict[str, VQVAEConfig] = {
         codebook_fit="contents",
         calibrate_decoder=True,
     ),
-    # Atari Freeway's lanes (154 × 152, 14 values, docs/worlds.md): the default's patch-local content-fitted codes,
-    # the frame padded with 6 rows of road above so that code rows 4i … 4i + 3 are lane i (a 40 × 38 grid); 640
-    # codes hold every distinct 4 × 4 patch of the training modes (627).
-    "freeway": VQVAEConfig(
-        name="freeway",
-        world="freeway",
-        height=154,
-        width=152,
-        pad_top=6,
-        channels=(32, 64),
-        strides=(2, 2),
-        residual_blocks=2,
-        latent_dim=32,
-        codebook_size=640,
-        likelihood="categorical",
-        learning_rate=1e-3,
-        batch_size=1024,
-        local=True,
-        codebook_fit="contents",
-        calibrate_decoder=True,
-    ),
 }
+
+# Atari Freeway's lanes (154 × 152, 14 values, docs/worlds.md): the default's patch-local content-fitted codes,
+# the frame padded with 6 rows of road above so that code rows 4i … 4i + 3 are lane i (a 40 × 38 grid); 640 codes
+# hold every distinct 4 × 4 patch of the training modes (627); no goal to weigh.
+PRESETS["freeway"] = VQVAEConfig(**{**PRESETS["default"].model_dump(), "name": "freeway", "world": "freeway",
+                                    "height": 154, "width": 152, "pad_top": 6, "codebook_size": 640,
+                                    "goal_weight": 1.0})  # fmt: skip
 
 
 def _conv(c_in: int, c_out: int, stride: int, local: bool = False) -> nn.Module:
