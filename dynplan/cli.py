@@ -161,3 +161,15 @@ def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[s
         hint = "" if isinstance(error, InputError) else " (run with --debug for the traceback)"
         print(f"{prog}: error: {_one_line(error)}{hint}", file=sys.stderr)
         raise SystemExit(2 if isinstance(error, InputError) else 1) from None
+
+
+def named_world(argv: list[str]) -> str:
+    """The `--world` an argument list names (`--world W` or `--world=W`; default road): which world's command to
+    parse it as."""
+    world = "road"
+    for i, arg in enumerate(argv):
+        if arg == "--world" and i + 1 < len(argv):
+            world = argv[i + 1]
+        elif arg.startswith("--world="):
+            world = arg.split("=", 1)[1]
+    return world

@@ -31,18 +31,6 @@ from dynplan.cli import die_with_parent, run_command
 STARTUP_TIMEOUT_S = 120.0
 
 
-def named_world(argv: list[str]) -> str:
-    """The `--world` an argument list names (`--world W` or `--world=W`; default road): which world's command to
-    parse it as."""
-    world = "road"
-    for i, arg in enumerate(argv):
-        if arg == "--world" and i + 1 < len(argv):
-            world = argv[i + 1]
-        elif arg.startswith("--world="):
-            world = arg.split("=", 1)[1]
-    return world
-
-
 def _free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))

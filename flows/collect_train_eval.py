@@ -1,18 +1,19 @@
-"""`python -m flows.collect_train_eval [--preset quick|full|smoke] [--out DIR] [--dask-address …]`: the whole
-system end to end — collect training episodes, build the frames store, train the VQ-VAE, encode the store, train
-the PixelCNN prior (per world-model configuration), evaluate the planners over the recorded evaluation
-episodes, and write the report (`DIR/<preset>/report/report.md` and `.html`).
+"""`python -m flows.collect_train_eval [--world road|freeway] [--preset quick|full|smoke] [--out DIR]
+[--dask-address …]`: the whole system end to end — collect training episodes, build the frames store, train the
+VQ-VAE, encode the store, train the PixelCNN prior (per world-model configuration), evaluate the planners (the
+road's over its recorded evaluation episodes, Freeway's on the real game), and write the report
+(`DIR/<folder>/report/report.md` and `.html`; the folder is the preset's name, `freeway-<preset>` for Freeway).
 
 Every stage is cached across runs on purpose, by what determines its result rather than by Prefect's default
 policy (which includes the flow run's id and so never hits across runs): collection skips complete logs (one
 per seed), the store skips logs it holds (by SHA-256), training runs are keyed by (store fingerprint, config,
 budget, code version) — finished ones are Prefect cache hits, interrupted ones resume from their last epoch —,
-evaluation reuses every per-episode result played with the same playouts, log and weights, and the report's
-pictures are redrawn only when the checkpoints change. A rerun therefore does only what changed, and an
-interrupted run resumes where it stopped.
+evaluation reuses every per-episode result played with the same playouts, log and weights (Freeway's: a run per
+pair of checkpoints), and the report's pictures are redrawn only when the checkpoints change. A rerun therefore
+does only what changed, and an interrupted run resumes where it stopped.
 
-Outputs: `DIR/<preset>/{logs,frames.zarr,checkpoints,models,results,report}` and the evaluation logs, shared by
-presets (they are the same recordings), in `DIR/eval_logs`. With a Dask scheduler address, collection, the
+Outputs: `DIR/<folder>/{logs,frames.zarr,checkpoints,models,results,report}` and the road's evaluation logs,
+shared by presets (they are the same recordings), in `DIR/eval_logs`. With a Dask scheduler address, collection, the
 store's conversion and the evaluation episodes run on the cluster's workers; training runs in this process.
 """
 
@@ -33,20 +34,32 @@ from prefect.cache_policies import NO_CACHE
 from dynplan.cli import CommandParser, add_debug_option
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
+from dynplan.env.worlds import DEFAULT_WORLD, FREEWAY, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import EVAL_SEED_START, CasePlan
 from dynplan.evaluation.table import aggregate, load_results
 from dynplan.files import atomic_path, write_bytes_atomic
 from dynplan.models import checkpoint as checkpoints
 from dynplan.models import pretrained_path
+from dynplan.models.checkpoint import digest
 from dynplan.paths import PathArgument, PathKind, check_output
-from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset
-from dynplan.pipeline.report import StageRecord, checkpoint_record, draw_figures, render_report, write_report
+from dynplan.pipeline import freeway_report
+from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset, pipeline_preset
+from dynplan.pipeline.report import (
+    StageRecord,
+    checkpoint_record,
+    draw_figures,
+    figures_section,
+    render_report,
+    table_section,
+    write_report,
+)
 from flows.artifacts import publish_report
 from flows.build_datasets import build_datasets
 from flows.cli import run
 from flows.collect import collect_episodes
 from flows.evaluate import evaluate_planner
+from flows.evaluate_freeway import evaluate_freeway
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 from flows.train import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
 
@@ -104,43 +117,88 @@ def world_model_task(preset: dict, model: str, store: str, work: str) -> list[di
     return records
 
 
+def _write_report(plan: PipelinePreset, work: Path, command: str, results: list[str],
+                  records: list[StageRecord]) -> str:  # fmt: skip
+    """The report's Markdown and HTML (the world's `results` section, then stages and checkpoints), its artifact
+    and the stages' timings; returns the Markdown's path."""
+    models = {m: work / "models" / m for m in plan.models}
+    ckpts = [checkpoint_record(s, m, models[m] / f"{s}.pt") for m in plan.models for s in ("vqvae", "pixelcnn")]
+    markdown = render_report(plan.model_dump(mode="json"), command, results, records, ckpts)
+    md, _ = write_report(work / "report", markdown)
+    publish_report(markdown, plan.folder)
+    timings = json.dumps([asdict(r) for r in records], indent=1).encode()
+    write_bytes_atomic(work / "report" / "stages.json", timings)
+    return str(md)
+
+
 @task(name="report", cache_policy=NO_CACHE)
 def report_task(preset: dict, work: str, eval_logs: str, command: str, stages: list[dict]) -> str:
-    plan = PipelinePreset(**preset)
-    work_dir = Path(work)
-    models = {m: work_dir / "models" / m for m in plan.models}
+    """The road's report: Table 1 and the learned model's pictures."""
+    plan, work_dir = PipelinePreset(**preset), Path(work)
     start = time.perf_counter()
     figures = None
     if plan.learned_techniques:
-        figures = draw_figures(work_dir / "report", models, Path(eval_logs), EVAL_SEED_START,
-                               plan.evaluation.rollout_steps[0], plan.report_episodes,
-                               plan.learned_techniques[0])  # fmt: skip
+        figures = draw_figures(work_dir / "report", {m: work_dir / "models" / m for m in plan.models},
+                               Path(eval_logs), EVAL_SEED_START, plan.evaluation.rollout_steps[0],
+                               plan.report_episodes, plan.learned_techniques[0])  # fmt: skip
     records = [StageRecord(**s) for s in stages]
     records.append(StageRecord("report", time.perf_counter() - start, "figures, GIF, Markdown and HTML"))
-    ckpts = [
-        checkpoint_record(stage, m, models[m] / f"{stage}.pt") for m in plan.models for stage in ("vqvae", "pixelcnn")
-    ]
     rows = aggregate(load_results(work_dir / "results")) if (work_dir / "results").exists() else []
-    markdown = render_report(plan.model_dump(mode="json"), command, rows, records, ckpts, figures)
-    md, _ = write_report(work_dir / "report", markdown)
-    publish_report(markdown, plan.name)
-    timings = json.dumps([asdict(r) for r in records], indent=1).encode()
-    write_bytes_atomic(work_dir / "report" / "stages.json", timings)
-    return str(md)
+    return _write_report(plan, work_dir, command, table_section(rows) + figures_section(figures), records)
+
+
+@task(name="report-freeway", cache_policy=NO_CACHE)
+def freeway_report_task(preset: dict, work: str, run_name: str, command: str, stages: list[dict]) -> str:
+    """Freeway's report: the run's episodes on the real game and the learned agent's GIF."""
+    plan, work_dir = PipelinePreset(**preset), Path(work)
+    start = time.perf_counter()
+    gif = None
+    if plan.learned_techniques:
+        gif = freeway_report.draw_gif(work_dir / "report", work_dir / "models" / plan.models[0], plan.evaluation)
+    records = [StageRecord(**s) for s in stages]
+    records.append(StageRecord("report", time.perf_counter() - start, "GIF, Markdown and HTML"))
+    results = freeway_report.results_section(work_dir / "results", run_name, command, gif)
+    return _write_report(plan, work_dir, command, results, records)
+
+
+def _evaluate_road(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
+    """Table 1's cases over the recorded evaluation episodes, then the road's report; (report, evaluation detail)."""
+    e, eval_logs = plan.evaluation, Path(out) / "eval_logs"
+    cases = CasePlan(techniques=e.techniques, models=plan.models, agent_speeds=e.agent_speeds,
+                     rollout_steps=e.rollout_steps, episodes=e.episodes)  # fmt: skip
+    agent = AgentSpec(playouts=e.playouts, model_dir=str(work / "models"))
+    rows = evaluate_planner.with_options(task_runner=runner)(
+        plan=cases, agent=agent, log_dir=str(eval_logs), results_dir=str(work / "results"), command=command,
+        artifacts=plan.folder)  # fmt: skip
+    return str(eval_logs), f"{len(rows)} table rows"
+
+
+def _evaluate_freeway(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
+    """The evaluation's episodes on the real game into a run named by the checkpoints (so new weights replay
+    every episode and the same ones reuse them); (run name, evaluation detail)."""
+    e, models = plan.evaluation, work / "models" / plan.models[0]
+    run_name = "weights-" + digest(*(sha256_file(models / f"{s}.pt") for s in ("vqvae", "pixelcnn")))[:12]
+    summary = evaluate_freeway.with_options(task_runner=runner)(
+        techniques=list(e.techniques), modes=list(e.modes), episodes=e.episodes, seed=e.seed, horizon=e.horizon,
+        results=str(work / "results"), run=run_name, model_dir=str(models))  # fmt: skip
+    return run_name, f"{sum(row['episodes'] for row in summary)} episodes, run {run_name}"
+
+
+#: Per world: its evaluation stage and its report task (the evaluation's first result is the report's input).
+_WORLD_STAGES = {DEFAULT_WORLD: (_evaluate_road, report_task), FREEWAY.name: (_evaluate_freeway, freeway_report_task)}
 
 
 @flow(name="collect-train-eval", log_prints=True)
 def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_address: str | None = None,
-                       command: str | None = None) -> str:  # fmt: skip
+                       command: str | None = None, world: str = DEFAULT_WORLD) -> str:  # fmt: skip
     """Collect → build datasets → train both world-model stages → evaluate → report, each stage cached; returns
     the report's path."""
-    if preset not in PIPELINE_PRESETS:
-        raise ValueError(f"preset must be one of {sorted(PIPELINE_PRESETS)}, got {preset!r}")
-    plan = PIPELINE_PRESETS[preset]
-    work, eval_logs = Path(out) / plan.name, Path(out) / "eval_logs"
+    plan = pipeline_preset(preset, world)
+    work = Path(out) / plan.folder
     store = str(work / "frames.zarr")
     runner = task_runner(dask_address)
-    command = command or f"python -m flows.collect_train_eval --preset {preset} --out {out}"
+    shown = "" if world == DEFAULT_WORLD else f"--world {world} "
+    command = command or f"python -m flows.collect_train_eval {shown}--preset {preset} --out {out}"
     stages: list[dict] = []
 
     def timed(name: str, call, detail=lambda result: ""):
@@ -150,21 +208,16 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
         return result
 
     timed("collect", lambda: collect_episodes.with_options(task_runner=runner)(
-        out=str(work / "logs"), episodes=plan.train_episodes, seed=0),
+        out=str(work / "logs"), episodes=plan.train_episodes, seed=0, world_name=plan.world),
         lambda r: f"{len(r['seeds'])} episodes, {r['written'] + r['rewritten']} recorded now")  # fmt: skip
     timed("build datasets", lambda: build_datasets.with_options(task_runner=runner)(
-        log_dir=str(work / "logs"), out=store, dask_address=dask_address),
+        log_dir=str(work / "logs"), out=store, dask_address=dask_address, world_name=plan.world),
         lambda r: f"{r['episodes']} episodes: {len(r['added'])} added")  # fmt: skip
     for model in plan.models:
         stages += world_model_task(plan.model_dump(mode="json"), model, store, str(work))
-    e = plan.evaluation
-    cases = CasePlan(techniques=e.techniques, models=plan.models, agent_speeds=e.agent_speeds,
-                     rollout_steps=e.rollout_steps, episodes=e.episodes)  # fmt: skip
-    agent = AgentSpec(playouts=e.playouts, model_dir=str(work / "models"))
-    timed("evaluate", lambda: evaluate_planner.with_options(task_runner=runner)(
-        plan=cases, agent=agent, log_dir=str(eval_logs), results_dir=str(work / "results"), command=command,
-        artifacts=plan.name), lambda rows: f"{len(rows)} table rows")  # fmt: skip
-    report = report_task(plan.model_dump(mode="json"), str(work), str(eval_logs), command, stages)
+    evaluate, report_of = _WORLD_STAGES[plan.world]
+    played = timed("evaluate", lambda: evaluate(plan, work, out, runner, command), lambda r: r[1])
+    report = report_of(plan.model_dump(mode="json"), str(work), played[0], command, stages)
     print(f"report: {report}")
     return report
 
@@ -172,7 +225,9 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
 def main(argv: list[str] | None = None) -> str:
     parser = CommandParser(prog="python -m flows.collect_train_eval", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--preset", default="quick", choices=sorted(PIPELINE_PRESETS), help="run scale")
+    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD, help="the world (default road)")
+    parser.add_argument("--preset", default="quick", choices=sorted({n for p in PIPELINE_PRESETS.values() for n in p}),
+                        help="run scale (each world has its own quick, full and smoke)")  # fmt: skip
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets",
                         help="output folder (default: datasets)")  # fmt: skip
     add_dask_option(parser)
@@ -184,8 +239,8 @@ def main(argv: list[str] | None = None) -> str:
     except (ConfigError, ValueError) as error:
         parser.error(str(error))
     command = shlex.join(["python", "-m", "flows.collect_train_eval", *(sys.argv[1:] if argv is None else argv)])
-    report = collect_train_eval(preset=args.preset, out=args.out, dask_address=address,
-                                command=command)  # fmt: skip
+    report = collect_train_eval(preset=args.preset, out=args.out, dask_address=address, command=command,
+                                world=args.world)  # fmt: skip
     print(json.dumps({"report": report}))
     return report
 

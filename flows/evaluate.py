@@ -27,7 +27,7 @@ from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
+from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded, named_world
 from dynplan.config import ConfigError, field_help
 from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
@@ -51,7 +51,7 @@ from dynplan.models.checkpoint import CheckpointError
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from flows.artifacts import ProgressArtifact, publish_table1
-from flows.cli import named_world, run
+from flows.cli import run
 from flows.collect import collect_episodes
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 

@@ -19,25 +19,29 @@ Keys:
   ESC               quit (with --record, the log is written first)
 
 With --live, every step is also served over the Foxglove WebSocket protocol (open it with the replay layout).
+`--world freeway` plays Atari Freeway's real game instead (`flows.play_freeway`; `--world freeway --help`).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import warnings
 from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from dynplan.cli import Bounded, CommandParser, bounded, run_command
+from dynplan.cli import Bounded, CommandParser, bounded, named_world, run_command
 from dynplan.data.collect import CollectPlan
 from dynplan.env.agent import ACTION_ANGLES_DEG
 from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import AGENT_SPEEDS, VALIDATION_SEED_START, road_models
+from dynplan.evaluation.freeway_play import FreewayPlay
 from dynplan.evaluation.protocol import world_agent
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra
@@ -193,6 +197,8 @@ def play(state: PlayState, scale: int = 8, fps: float = 8.0, planner_plays: bool
 def _parser() -> CommandParser:
     parser = CommandParser(prog="python -m flows.play", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
+                        help="the world (default road; `--world freeway --help` lists Freeway's options)")  # fmt: skip
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=None,
                         help="play the world of this seed (default 2,000,000)")  # fmt: skip
@@ -223,9 +229,16 @@ def _parser() -> CommandParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> PlayState:
+def main(argv: Sequence[str] | None = None) -> PlayState | FreewayPlay:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if named_world(argv) == "freeway":
+        from flows import play_freeway
+
+        return play_freeway.main(argv)
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.world != DEFAULT_WORLD:  # an abbreviated --world reaches here: spell it out to dispatch
+        parser.error(f"--world {args.world}: give it as --world {args.world} (in full) for its own options")
     inputs = () if args.log is None else (args.log,)
     for option, path in (("--record", args.record), ("--screenshot", args.screenshot)):
         if path is not None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from prefect import flow
 
-from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
+from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded, named_world
 from dynplan.config import ConfigError, field_help
 from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
@@ -26,7 +26,7 @@ from dynplan.extras import MissingExtra, require
 from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.paths import PathArgument, PathKind, check_output
-from flows.cli import named_world, run
+from flows.cli import run
 
 
 @flow(name="replay-episode", log_prints=True)

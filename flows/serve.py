@@ -6,9 +6,10 @@ deployments, one per run-scale preset, so that a Prefect server's users can trig
     python -m flows.serve                          # keeps running: it executes the triggered runs
     prefect deployment run collect-train-eval/quick --watch
 
-The deployments are `collect-train-eval/quick`, `/full` and `/smoke`; parameters can be overridden per run
-(`-p out=/data/dynplan`). This process runs the flows it receives; with a Dask scheduler address the flows'
-collection, conversion and evaluation tasks go to that cluster.
+The deployments are the road's `collect-train-eval/quick`, `/full` and `/smoke` and Freeway's `/freeway-quick`,
+`/freeway-full` and `/freeway-smoke`; parameters can be overridden per run (`-p out=/data/dynplan`). This process
+runs the flows it receives; with a Dask scheduler address the flows' collection, conversion and evaluation tasks
+go to that cluster.
 """
 
 from __future__ import annotations
@@ -23,17 +24,21 @@ from dynplan.pipeline.presets import PIPELINE_PRESETS
 from flows.collect_train_eval import collect_train_eval
 from flows.runners import add_dask_option, checked_dask_address
 
+#: Every preset of every world by its deployment's name: the preset's folder (`quick`, `freeway-quick`, …).
+PRESETS_BY_DEPLOYMENT = {p.folder: p for presets in PIPELINE_PRESETS.values() for p in presets.values()}
+
 
 def deployments(out: str, address: str | None, presets: list[str]) -> list:
-    """One RunnerDeployment per preset, named after it."""
+    """One RunnerDeployment per preset, named by `PRESETS_BY_DEPLOYMENT`."""
+    chosen = [PRESETS_BY_DEPLOYMENT[name] for name in presets]
     return [
         collect_train_eval.to_deployment(
-            name=name,
-            parameters={"preset": name, "out": out, "dask_address": address},
-            description=PIPELINE_PRESETS[name].description,
-            tags=["dynplan", name],
+            name=p.folder,
+            parameters={"preset": p.name, "world": p.world, "out": out, "dask_address": address},
+            description=p.description,
+            tags=["dynplan", p.world, p.name],
         )
-        for name in presets
+        for p in chosen
     ]
 
 
@@ -42,7 +47,10 @@ def main(argv: list[str] | None = None) -> None:
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets",
                         help="output folder of the runs (default: datasets)")  # fmt: skip
-    parser.add_argument("--presets", nargs="+", default=sorted(PIPELINE_PRESETS), choices=sorted(PIPELINE_PRESETS))
+    names = list(PRESETS_BY_DEPLOYMENT)
+    parser.add_argument(
+        "--presets", nargs="+", default=names, choices=names, help="the deployments to serve (default: all)"
+    )
     add_dask_option(parser)
     parser.add_argument("--limit", type=Bounded(int, 1, 256), default=1, help="flow runs executed at once (default 1)")
     args = parser.parse_args(argv)

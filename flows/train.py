@@ -23,7 +23,7 @@ from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.data.metadata import metadata_problem
 from dynplan.data.store import store_problem, store_world
-from dynplan.env.worlds import DEFAULT_WORLD
+from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.models import checkpoint
 from dynplan.models.checkpoint import CheckpointError, digest
 from dynplan.models.pixelcnn import PixelCNNConfig
@@ -167,6 +167,8 @@ def _parser() -> CommandParser:
     parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
     parser.add_argument("--store", type=PathArgument(PathKind.STORE),
                         help=f"frames store from flows.build_datasets (default {STORE})")  # fmt: skip
+    parser.add_argument("--world", choices=list(WORLDS), default=None,
+                        help="the store's world, checked against the store's own (default: the store's)")  # fmt: skip
     parser.add_argument("--model", choices=list(WORLD_MODELS),
                         help="world-model configuration (default: the store's world's: default for the road, "
                         "freeway for Freeway)")  # fmt: skip
@@ -214,7 +216,10 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
     if problem:
         raise ValueError(f"--store {problem}")
     group = zarr.open_group(args.store, mode="r", use_consolidated=False)
-    if (world := store_world(dict(group.attrs))) != preset.world:
+    world = store_world(dict(group.attrs))
+    if args.world is not None and world != args.world:
+        raise ValueError(f"--store {args.store}: holds the {world} world's episodes, not --world {args.world}'s")
+    if world != preset.world:
         raise ValueError(f"--store {args.store}: holds the {world} world's episodes; --model {args.model} models the "
                          f"{preset.world} world's (the {world} world's: {', '.join(models_of(world))})")  # fmt: skip
     codes = args.codes or f"codes_{args.model}"
@@ -236,7 +241,7 @@ def main(argv: list[str] | None = None) -> str:
     parser = _parser()
     args = parser.parse_args(argv)
     args.store = args.store or STORE  # checked with the rest, after the values that need no store
-    args.model = args.model or default_model(_world_of(args.store))
+    args.model = args.model or default_model(args.world or _world_of(args.store))
     try:
         overrides, budget = _checked(args)
     except (ConfigError, ValueError, FileNotFoundError, CheckpointError, MissingExtra) as error:

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from dynplan.cli import Bounded, CommandParser, InputError, add_debug_option, run_command
+from dynplan.env.worlds import WORLDS
 from dynplan.logs.format import FRAME_PERIOD_NS, STUDIO_LAYOUT, panel_topics
 from dynplan.logs.reader import read_episode_log
 from dynplan.paths import PathArgument, PathKind, check_output
@@ -30,6 +31,8 @@ def _parser() -> argparse.ArgumentParser:
     parser = CommandParser(prog="python -m flows.view", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("log", nargs="?", type=PathArgument(PathKind.LOG), help="an episode or replay log (.mcap)")
+    parser.add_argument("--world", choices=list(WORLDS), default=None,
+                        help="the log's world, checked against the log's own (default: the log's)")  # fmt: skip
     parser.add_argument("--port", type=Bounded(int, 0, 65535), default=0,
                         help="the port to serve on at 127.0.0.1 (default 0: a free one)")  # fmt: skip
     parser.add_argument("--screenshot", type=PathArgument(PathKind.OUTPUT_FILE),
@@ -64,6 +67,8 @@ def _check(args: argparse.Namespace) -> None:
     if args.cache is not None:
         check_output(args.cache, "--cache", "folder", inputs=(args.log,))
     log = read_episode_log(args.log)
+    if args.world is not None and log.entry.name != args.world:
+        raise InputError(f"{args.log}: a log of the {log.entry.name} world, not --world {args.world}'s")
     duration = (log.n_frames - 1) * FRAME_PERIOD_NS / 1e9
     if args.at is not None and args.at > duration:
         raise InputError(f"--at={args.at:g} is past the log's end; valid range [0, {duration:g}] seconds")

@@ -151,6 +151,9 @@ def test_a_learned_agent_plays_the_game_with_a_model_trained_on_a_freeway_store(
         main(["vqvae", "--store", store, "--model", "default", "--out", runs])
     assert exit_.value.code == 2
     assert "--model default models the road world's (the freeway world's: freeway)" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main(["vqvae", "--store", store, "--world", "road", "--out", runs])
+    assert exit_.value.code == 2 and "holds the freeway world's episodes, not --world road's" in capsys.readouterr().err
     small = ["--epochs", "1", "--steps-per-epoch", "20", "--out", runs, "--store", store]
     tokenizer = main(["vqvae", *small])
     prior = main(["pixelcnn", *small])

@@ -2,6 +2,7 @@
 deployment against a real server, and the same run on a real Dask cluster."""
 
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -11,11 +12,11 @@ import torch
 
 from dynplan.config import ConfigError
 from dynplan.evaluation.store import Run
-from dynplan.pipeline.presets import PIPELINE_PRESETS, EvalPlan, PipelinePreset
+from dynplan.pipeline.presets import PIPELINE_PRESETS, EvalPlan, FreewayEvalPlan, PipelinePreset, pipeline_preset
 
 
 def test_presets_are_valid_data():
-    quick, full = PIPELINE_PRESETS["quick"], PIPELINE_PRESETS["full"]
+    quick, full = PIPELINE_PRESETS["road"]["quick"], PIPELINE_PRESETS["road"]["full"]
     assert quick.pixelcnn_config("default").codebook_size == quick.vqvae_config("default").codebook_size
     assert full.models == ("default", "paper") and full.pretrained and full.evaluation.episodes == 100
     assert set(full.evaluation.techniques) >= {"oracle", "mid", "samples5", "samples10"}
@@ -26,6 +27,27 @@ def test_presets_are_valid_data():
         PipelinePreset(name="x", train_episodes=2)
     with pytest.raises(ConfigError, match="codebook_size"):
         PipelinePreset(name="x", train_episodes=5, vqvae={"default": {"overrides": {"codebook_size": 1}}})
+
+
+def test_freeway_presets_are_valid_data():
+    quick, full = pipeline_preset("quick", "freeway"), pipeline_preset("full", "freeway")
+    assert quick.folder == "freeway-quick" and quick.models == ("freeway",) and quick.train_episodes == 8
+    assert quick.learned_techniques == ("learned",) and quick.evaluation.modes == (0,)
+    assert quick.pixelcnn_config("freeway").strip_rows == 4 and quick.vqvae_config("freeway").world == "freeway"
+    assert full.pretrained and full.evaluation.modes == (0, 4) and full.evaluation.episodes == 20
+    assert PipelinePreset(**quick.model_dump(mode="json")) == quick  # the flow's tasks rebuild it from JSON
+    with pytest.raises(ConfigError, match="unknown techniques"):
+        FreewayEvalPlan(techniques=("oracle", "mid"))
+    with pytest.raises(ConfigError, match=r"mode=9 is invalid.*valid range \[0, 7\]"):
+        FreewayEvalPlan(modes=(0, 9))
+    with pytest.raises(ConfigError, match=r"train_episodes=9 is invalid for the freeway world; valid range \[5, 8\]"):
+        PipelinePreset(name="x", world="freeway", train_episodes=9, models=("freeway",), evaluation=FreewayEvalPlan())
+    with pytest.raises(ConfigError, match="the evaluation plays the road world, not this run's freeway"):
+        PipelinePreset(name="x", world="freeway", train_episodes=8, models=("freeway",))
+    with pytest.raises(ConfigError, match="models must be among"):
+        PipelinePreset(name="x", world="freeway", train_episodes=8, evaluation=FreewayEvalPlan())
+    with pytest.raises(ValueError, match="preset must be one of"):
+        pipeline_preset("huge", "freeway")
 
 
 def test_cli_rejects_an_unknown_preset():
@@ -131,8 +153,8 @@ def test_pretrained_run_uses_the_committed_tokenizer_and_trains_its_prior(tmp_pa
     from dynplan.models import pretrained_path
     from flows import collect_train_eval as pipeline
 
-    smoke = PIPELINE_PRESETS["smoke"]
-    monkeypatch.setitem(PIPELINE_PRESETS, "smoke", smoke.model_copy(update={"pretrained": True}))
+    smoke = PIPELINE_PRESETS["road"]["smoke"]
+    monkeypatch.setitem(PIPELINE_PRESETS["road"], "smoke", smoke.model_copy(update={"pretrained": True}))
     monkeypatch.setattr(pipeline, "pretrained_path", lambda stage, model: (
         pretrained_path(stage, model) if stage == "vqvae" else tmp_path / "no-such-prior.pt"))  # fmt: skip
     pipeline.collect_train_eval(preset="smoke", out=str(tmp_path))
@@ -141,3 +163,26 @@ def test_pretrained_run_uses_the_committed_tokenizer_and_trains_its_prior(tmp_pa
     prior = torch.load(models / "pixelcnn.pt", weights_only=False)
     assert prior["config"]["codebook_size"] == 4096 and prior["config"]["channels"] == 8  # K from the tokenizer
     assert "| vqvae [default] | " in (tmp_path / "smoke" / "report" / "report.md").read_text()
+
+
+@pytest.mark.slow
+def test_freeway_run_writes_its_report_and_reruns_from_cache(tmp_path, prefect_api):
+    pytest.importorskip("ale_py")
+    from flows.collect_train_eval import collect_train_eval
+
+    report = collect_train_eval(preset="smoke", out=str(tmp_path), world="freeway")
+    work = tmp_path / "freeway-smoke"
+    text = Path(report).read_text()
+    assert report == str(work / "report" / "report.md")
+    for section in ("freeway preset `smoke`", "## Atari Freeway", "--world freeway --preset smoke",
+                    "| vqvae [freeway] |", "### pixelcnn `freeway`", "8 episodes, 8 recorded now"):  # fmt: skip
+        assert section in text, section
+    assert re.search(r"\| up \| 2\d ± 0, \d+ \|  \|", text)  # always-UP scores 21–23, depending on the NOOP start
+    runs = [p for p in (work / "results").iterdir() if p.is_dir()]
+    assert len(runs) == 1 and runs[0].name.startswith("weights-")  # one run per pair of checkpoints
+    before = _files(work / "checkpoints") | _files(work / "models") | _files(runs[0] / "mode0-seed0")
+
+    collect_train_eval(preset="smoke", out=str(tmp_path), world="freeway")
+    assert _files(work / "checkpoints") | _files(work / "models") | _files(runs[0] / "mode0-seed0") == before
+    rerun = (work / "report" / "report.md").read_text()
+    assert "cached, 1 epochs" in rerun and "0 recorded now" in rerun and "8 episodes: 0 added" in rerun

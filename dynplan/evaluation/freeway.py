@@ -93,27 +93,41 @@ def world_model_for(technique: str, model_dir: str | os.PathLike | None = None) 
     return load_world_model(model_dir, MODEL) if technique == "learned" else None
 
 
-def play_turns(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0,
-               model: ForwardModel | None = None) -> Iterator[Turn]:  # fmt: skip
-    """Play `episode` of the real game with `technique`, one turn at a time, to the game's end; `model`: the world
-    model a learned agent imagines the lanes with."""
+def searched_frames(observed: list[np.ndarray], search: ChickenSearch, future: np.ndarray | None = None,
+                    model: ForwardModel | None = None) -> np.ndarray:  # fmt: skip
+    """The lanes a planner searches at a decision: the frame now (the last `observed`) and the k after it — the
+    true `future` (the oracle: the recording from the frame now on), the ones `model` imagines from the observed
+    frames, or (neither) lanes that hold no car."""
+    if future is not None:
+        return future[: search.horizon + 1]
+    if model is not None:
+        ahead = model.predict(np.stack(observed[-OBSERVED:]), search.horizon).frames
+    else:
+        ahead = np.full((search.horizon, *observed[-1].shape), ROAD_VALUES[0], np.uint8)
+    return np.concatenate([observed[-1][None], ahead])
+
+
+def check_technique(technique: str, model: ForwardModel | None) -> None:
+    """A ValueError unless `technique` is one of `TECHNIQUES` and is given a world model exactly when learned."""
     if technique not in TECHNIQUES:
         raise ValueError(f"technique {technique!r} is not one of {', '.join(TECHNIQUES)}")
     if (technique == "learned") != (model is not None):
         needs = "needs a world model" if technique == "learned" else "takes no world model"
         raise ValueError(f"technique {technique!r} {needs}")
+
+
+def play_turns(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0,
+               model: ForwardModel | None = None) -> Iterator[Turn]:  # fmt: skip
+    """Play `episode` of the real game with `technique`, one turn at a time, to the game's end; `model`: the world
+    model a learned agent imagines the lanes with."""
+    check_technique(technique, model)
     future = record_mode(episode.mode).frames[episode.noop_start :] if technique == "oracle" else None
     game, rng = FreewayGame(episode), np.random.default_rng(seed)
     observed, t = [game.world_frame()], 0
-    road = np.full((search.horizon, *observed[0].shape), ROAD_VALUES[0], np.uint8)
     while True:
         chicken, frames, ms, start = game.chicken, None, None, time.perf_counter()
         if technique in PLANNERS:
-            if future is not None:
-                frames = future[t : t + search.horizon + 1]
-            else:
-                ahead = road if model is None else model.predict(np.stack(observed[-OBSERVED:]), search.horizon).frames
-                frames = np.concatenate([observed[-1][None], ahead])
+            frames = searched_frames(observed, search, None if future is None else future[t:], model)
             action = plan_chicken(chicken, frames, search).action
             ms = (time.perf_counter() - start) * 1e3
         else:
@@ -195,9 +209,10 @@ SCOREBOARD = {"random": 0.0, "human": 29.6, "SimPLe": 16.7, "TWM": 24.3, "IRIS":
 EVALUATION_COMMAND = "python -m flows.evaluate --world freeway --modes 0 4 --episodes 20 --seed 0 --horizon 8"
 
 
-def results_section(results: str | os.PathLike, run: str = "evaluation") -> list[str]:
+def results_section(results: str | os.PathLike, run: str = "evaluation",
+                    command: str = EVALUATION_COMMAND) -> list[str]:  # fmt: skip
     """The results page's Freeway section from the run's result files (none if the run is not there): a row per
-    technique and horizon, a column per mode."""
+    technique and horizon, a column per mode; `command` is the one that played the run."""
     if not Path(results, run).is_dir():
         return []
     rows = summarise(read_run(results, run))
@@ -207,7 +222,7 @@ def results_section(results: str | os.PathLike, run: str = "evaluation") -> list
         cells.setdefault((row["technique"], row["horizon"]), {})[row["mode"]] = row
     header = " | ".join(f"mode {m}" for m in modes)
     lines = ["## Atari Freeway", "",
-             f"`{EVALUATION_COMMAND}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
+             f"`{command}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
              "starts drawn from the seed), and knocks an episode; a decision's median ms, the prediction's and the "
              "search's (two processes on 2 cores; `python -m dynplan.bench freeway` times one idle core).", "",
              f"| technique | {header} | ms |", f"|{' --- |' * (len(modes) + 2)}"]  # fmt: skip

@@ -1,6 +1,7 @@
-"""The collect-train-eval report: Table 1 beside the paper, prediction error against horizon, a Figure-1 image, a
-GIF of one episode, the stages' wall times, and the config and checkpoint of every stage — as Markdown, and as
-HTML rendered from it (markdown-it), with the pictures beside them.
+"""The collect-train-eval report: the world's results and pictures (the road's: Table 1 beside the paper,
+prediction error against horizon, a Figure-1 image, a GIF of one episode; Freeway's: `freeway_report`), the
+stages' wall times, and the config and checkpoint of every stage — as Markdown, and as HTML rendered from it
+(markdown-it), with the pictures beside them.
 
 The pictures cost model inference; they are redrawn only when the checkpoints they show change (a manifest of
 the checkpoints' SHA-256 sits beside them), so a cached rerun of the pipeline rewrites the report in seconds.
@@ -89,40 +90,54 @@ def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int,
     return names
 
 
-def render_report(preset: dict, command: str, rows: list[dict], stages: list[StageRecord],
-                  checkpoints: list[CheckpointRecord], figures: dict[str, str] | None) -> str:  # fmt: skip
-    """The report's Markdown."""
-    lines = [
-        f"# dynplan collect-train-eval report: preset `{preset['name']}`",
-        "",
-        f"Regenerate with `{command}`. Learned rows use the world models trained (or, with `pretrained`, "
-        "copied from the committed weights) by this run; cells are goals / timeouts / deaths and steps "
-        "(mean ± std over the episodes not died), as in the paper's Table 1.",
+def table_section(rows: list[dict]) -> list[str]:
+    """The road's results: Table 1 of the run."""
+    return [
+        "Cells are goals / timeouts / deaths and steps (mean ± std over the episodes not died), as in the paper's "
+        "Table 1.",
         "",
         "## Table 1",
         "",
         render_markdown(rows) if rows else "(no evaluation results)",
         "",
     ]
-    if figures:
-        lines += [
-            "## Predictions",
-            "",
-            f"Prediction error against horizon on held-out episodes (evaluation seeds from {EVAL_SEED_START}):",
-            "",
-            f"![prediction error]({figures['errors']})",
-            "",
-            "Figure 1 (per row a step ahead: the true frame, the model's, their error — false negatives red, "
-            "false positives blue):",
-            "",
-            f"![figure 1]({figures['figure1']})",
-            "",
-            "One evaluation episode planned with the learned model (observed | true at the horizon | predicted | "
-            "error):",
-            "",
-            f"![episode]({figures['gif']})",
-            "",
-        ]
+
+
+def figures_section(figures: dict[str, str] | None) -> list[str]:
+    """The road's pictures (none if not drawn)."""
+    if not figures:
+        return []
+    return [
+        "## Predictions",
+        "",
+        f"Prediction error against horizon on held-out episodes (evaluation seeds from {EVAL_SEED_START}):",
+        "",
+        f"![prediction error]({figures['errors']})",
+        "",
+        "Figure 1 (per row a step ahead: the true frame, the model's, their error — false negatives red, "
+        "false positives blue):",
+        "",
+        f"![figure 1]({figures['figure1']})",
+        "",
+        "One evaluation episode planned with the learned model (observed | true at the horizon | predicted | error):",
+        "",
+        f"![episode]({figures['gif']})",
+        "",
+    ]
+
+
+def render_report(preset: dict, command: str, results: list[str], stages: list[StageRecord],
+                  checkpoints: list[CheckpointRecord]) -> str:  # fmt: skip
+    """The report's Markdown: `results` (the world's results and pictures, Markdown lines), then the stages,
+    checkpoints and preset."""
+    lines = [
+        f"# dynplan collect-train-eval report: {preset['world']} preset `{preset['name']}`",
+        "",
+        f"Regenerate with `{command}`. Learned rows use the world models trained (or, with `pretrained`, "
+        "copied from the committed weights) by this run.",
+        "",
+        *results,
+    ]
     lines += ["## Stages", "", "| stage | wall time (s) | detail |", "| --- | ---: | --- |"]
     lines += [f"| {s.name} | {s.wall_s:.1f} | {s.detail} |" for s in stages]
     lines += ["", f"Total: {sum(s.wall_s for s in stages):.1f} s.", "", "## Checkpoints", ""]
