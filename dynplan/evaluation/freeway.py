@@ -209,10 +209,11 @@ SCOREBOARD = {"random": 0.0, "human": 29.6, "SimPLe": 16.7, "TWM": 24.3, "IRIS":
 EVALUATION_COMMAND = "python -m flows.evaluate --world freeway --modes 0 4 --episodes 20 --seed 0 --horizon 8"
 
 
-def results_section(results: str | os.PathLike, run: str = "evaluation",
-                    command: str = EVALUATION_COMMAND) -> list[str]:  # fmt: skip
+def results_section(results: str | os.PathLike, run: str = "evaluation", command: str = EVALUATION_COMMAND,
+                    played: str = "two processes on 2 cores") -> list[str]:  # fmt: skip
     """The results page's Freeway section from the run's result files (none if the run is not there): a row per
-    technique and horizon, a column per mode; `command` is the one that played the run."""
+    technique and horizon, a column per mode; `command` is the one that played the run, `played` how (the times'
+    conditions)."""
     if not Path(results, run).is_dir():
         return []
     rows = summarise(read_run(results, run))
@@ -224,7 +225,7 @@ def results_section(results: str | os.PathLike, run: str = "evaluation",
     lines = ["## Atari Freeway", "",
              f"`{command}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
              "starts drawn from the seed), and knocks an episode; a decision's median ms, the prediction's and the "
-             "search's (two processes on 2 cores; `python -m dynplan.bench freeway` times one idle core).", "",
+             f"search's ({played}; `python -m dynplan.bench freeway` times one idle core).", "",
              f"| technique | {header} | ms |", f"|{' --- |' * (len(modes) + 2)}"]  # fmt: skip
     for (technique, horizon), by_mode in cells.items():
         shown = [f"{r['score']:g} ± {r['std']:g}, {r['knocks']:g}" if (r := by_mode.get(m)) else "" for m in modes]

@@ -43,7 +43,8 @@ def draw_gif(out: Path, model_dir: Path, plan: FreewayEvalPlan) -> str:
 
 def results_section(results: Path, run: str, command: str, gif: str | None) -> list[str]:
     """The run's Freeway table (a row per technique, a column per mode) and, when drawn, the learned agent's GIF."""
-    lines = freeway.results_section(results, run, command) or ["## Atari Freeway", "", "(no evaluation results)", ""]
+    played = "the episodes played at once by the run's task runner"
+    lines = freeway.results_section(results, run, command, played) or ["## Atari Freeway", "", "(no results)", ""]
     if gif:
         lines += [
             "The learned agent's first steps (lanes now with the chicken | true lanes k steps on | the lanes "
