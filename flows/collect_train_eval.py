@@ -41,7 +41,6 @@ from dynplan.evaluation.table import aggregate, load_results
 from dynplan.files import atomic_path, write_bytes_atomic
 from dynplan.models import checkpoint as checkpoints
 from dynplan.models import pretrained_path
-from dynplan.models.checkpoint import digest
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.pipeline import freeway_report
 from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset, pipeline_preset
@@ -148,17 +147,18 @@ def report_task(preset: dict, work: str, eval_logs: str, command: str, stages: l
 
 
 @task(name="report-freeway", cache_policy=NO_CACHE)
-def freeway_report_task(preset: dict, work: str, run_name: str, command: str, stages: list[dict]) -> str:
-    """Freeway's report: the run's episodes on the real game and the learned agent's GIF."""
+def freeway_report_task(preset: dict, work: str, results: str, command: str, stages: list[dict]) -> str:
+    """Freeway's report: the plan's episodes on the real game and the learned agent's GIF."""
     plan, work_dir = PipelinePreset(**preset), Path(work)
+    models = work_dir / "models" / plan.models[0]
     start = time.perf_counter()
     gif = None
     if plan.learned_techniques:
-        gif = freeway_report.draw_gif(work_dir / "report", work_dir / "models" / plan.models[0], plan.evaluation)
+        gif = freeway_report.draw_gif(work_dir / "report", models, plan.evaluation)
     records = [StageRecord(**s) for s in stages]
     records.append(StageRecord("report", time.perf_counter() - start, "GIF, Markdown and HTML"))
-    results = freeway_report.results_section(work_dir / "results", run_name, command, gif)
-    return _write_report(plan, work_dir, command, results, records)
+    rows = freeway_report.planned_results(Path(results), models, plan.evaluation)
+    return _write_report(plan, work_dir, command, freeway_report.results_section(rows, command, gif), records)
 
 
 def _evaluate_road(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
@@ -174,14 +174,17 @@ def _evaluate_road(plan: PipelinePreset, work: Path, out: str, runner, command: 
 
 
 def _evaluate_freeway(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
-    """The evaluation's episodes on the real game into a run named by the checkpoints (so new weights replay
-    every episode and the same ones reuse them); (run name, evaluation detail)."""
-    e, models = plan.evaluation, work / "models" / plan.models[0]
-    run_name = "weights-" + digest(*(sha256_file(models / f"{s}.pt") for s in ("vqvae", "pixelcnn")))[:12]
-    summary = evaluate_freeway.with_options(task_runner=runner)(
-        techniques=list(e.techniques), modes=list(e.modes), episodes=e.episodes, seed=e.seed, horizon=e.horizon,
-        results=str(work / "results"), run=run_name, model_dir=str(models))  # fmt: skip
-    return run_name, f"{sum(row['episodes'] for row in summary)} episodes, run {run_name}"
+    """The plan's episodes on the real game: the learned technique's into a run named by the checkpoints, the others'
+    into the reference run (they do not read the weights); (the results folder, evaluation detail)."""
+    e, models, results = plan.evaluation, work / "models" / plan.models[0], work / "results"
+    by_run: dict[str, list[str]] = {}
+    for technique in e.techniques:
+        by_run.setdefault(freeway_report.run_of(technique, models), []).append(technique)
+    for run_name, techniques in by_run.items():
+        evaluate_freeway.with_options(task_runner=runner)(
+            techniques=techniques, modes=list(e.modes), episodes=e.episodes, seed=e.seed, horizon=e.horizon,
+            results=str(results), run=run_name, model_dir=str(models))  # fmt: skip
+    return str(results), f"{len(e.modes) * len(e.techniques) * e.episodes} episodes, runs {', '.join(by_run)}"
 
 
 #: Per world: its evaluation stage and its report task (the evaluation's first result is the report's input).

@@ -168,6 +168,8 @@ def _parser() -> CommandParser:
 def main(argv: Sequence[str] | None = None) -> FreewayPlay:
     parser = _parser()
     args = parser.parse_args(argv)
+    if args.model_dir is not None and args.technique != "learned":
+        parser.error(f"--model-dir: only with --technique learned (--technique {args.technique} reads no world model)")
     for option, path in (("--record", args.record), ("--screenshot", args.screenshot)):
         if path is not None:
             try:

@@ -40,6 +40,9 @@ def test_help_lists_the_keys_and_a_bad_option_names_its_range(capsys):
     with pytest.raises(SystemExit):
         main(["--world", "freeway", "--technique", "up"])
     assert "invalid choice: 'up'" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--world", "freeway", "--technique", "oracle", "--model-dir", "."])
+    assert "--model-dir: only with --technique learned" in capsys.readouterr().err
 
 
 def test_keys_step_the_real_game():
@@ -64,6 +67,7 @@ def test_the_oracle_plays_as_in_an_evaluation_and_its_replay_reads_back(tmp_path
     assert state.score == sum(turn.step.reward for turn in evaluated) >= 1
     log = read_episode_log(out)
     assert len(log.agent.action) == 100 and log.agent.t[0] == 5 and len(log.imagined) == 100
+    assert log.agent.outcome[-1] == "running"  # quit before the game's end
     np.testing.assert_array_equal(log.imagined[5], state.world.frames[6:22])  # the oracle's lanes are the truth
     shot = pygame.image.load(str(picture))
     assert shot.get_size() == (4 * 152 + 5 * 8, 154 + 110)
@@ -81,6 +85,7 @@ def test_the_learned_planner_decides_as_in_an_evaluation():
     for played, reference in zip(state.turns, evaluated, strict=True):
         np.testing.assert_array_equal(played.frames, reference.frames)  # the same imagined lanes
     assert state.look_ahead().shape == (9, 154, 152)
+    assert state.cycle_horizon() == 16 and state.look_ahead().shape == (17, 154, 152)  # a new look at the new k
     with pytest.raises(ValueError, match=r"action=3 is invalid; valid range \[0, 2\]"):
         state.step(3)
     with pytest.raises(ValueError, match="needs a world model"):

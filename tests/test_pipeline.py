@@ -43,11 +43,30 @@ def test_freeway_presets_are_valid_data():
     with pytest.raises(ConfigError, match=r"train_episodes=9 is invalid for the freeway world; valid range \[5, 8\]"):
         PipelinePreset(name="x", world="freeway", train_episodes=9, models=("freeway",), evaluation=FreewayEvalPlan())
     with pytest.raises(ConfigError, match="the evaluation plays the road world, not this run's freeway"):
-        PipelinePreset(name="x", world="freeway", train_episodes=8, models=("freeway",))
+        PipelinePreset(name="x", world="freeway", train_episodes=8, models=("freeway",), evaluation=EvalPlan())
+    # an evaluation without its world, or none, is the run's world's
+    default = PipelinePreset(name="x", world="freeway", train_episodes=8, models=("freeway",))
+    assert default.evaluation == FreewayEvalPlan()
+    given = PipelinePreset(name="x", world="freeway", train_episodes=8, models=("freeway",), evaluation={"modes": [4]})
+    assert given.evaluation == FreewayEvalPlan(modes=(4,))
+    with pytest.raises(ConfigError, match="world 'mars' is not one of road, freeway"):
+        PipelinePreset(name="x", world="mars", train_episodes=8)
     with pytest.raises(ConfigError, match="models must be among"):
         PipelinePreset(name="x", world="freeway", train_episodes=8, evaluation=FreewayEvalPlan())
     with pytest.raises(ValueError, match="preset must be one of"):
         pipeline_preset("huge", "freeway")
+
+
+def test_freeway_runs_are_named_by_the_weights_the_learned_agent_reads(tmp_path):
+    from dynplan.pipeline.freeway_report import REFERENCE_RUN, run_of, weights_run
+
+    for stage in ("vqvae", "pixelcnn"):
+        (tmp_path / f"{stage}.pt").write_bytes(stage.encode())
+    first = weights_run(tmp_path)
+    assert run_of("learned", tmp_path) == first and first.startswith("weights-")
+    assert {run_of(t, tmp_path) for t in ("oracle", "zero", "up", "random")} == {REFERENCE_RUN}
+    (tmp_path / "pixelcnn.pt").write_bytes(b"retrained")
+    assert weights_run(tmp_path) != first  # new weights play anew
 
 
 def test_cli_rejects_an_unknown_preset():
@@ -99,7 +118,7 @@ def test_end_to_end_run_writes_the_report_and_reruns_from_cache(tmp_path, prefec
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize(("deployment", "section"), [("smoke", "## Table 1"), ("freeway-smoke", "## Atari Freeway")])
+@pytest.mark.parametrize(("deployment", "section"), [("smoke", "## Table 1"), ("freeway-smoke", "| up | 2")])
 def test_deployment_runs_on_a_real_prefect_server(tmp_path, deployment, section):
     from dynplan.pipeline.deployment_check import run_check
 
@@ -181,11 +200,12 @@ def test_freeway_run_writes_its_report_and_reruns_from_cache(tmp_path, prefect_a
                     "| vqvae [freeway] |", "### pixelcnn `freeway`", "8 episodes, 8 recorded now"):  # fmt: skip
         assert section in text, section
     assert re.search(r"\| up \| 2\d ± 0, \d+ \|  \|", text)  # always-UP scores 21–23, depending on the NOOP start
-    runs = [p for p in (work / "results").iterdir() if p.is_dir()]
-    assert len(runs) == 1 and runs[0].name.startswith("weights-")  # one run per pair of checkpoints
-    before = _files(work / "checkpoints") | _files(work / "models") | _files(runs[0] / "mode0-seed0")
+    runs = [p.name for p in (work / "results").iterdir() if p.is_dir()]
+    assert runs == ["reference"]  # always-UP does not read the weights
+    played = work / "results" / "reference" / "mode0-seed0"
+    before = _files(work / "checkpoints") | _files(work / "models") | _files(played)
 
     collect_train_eval(preset="smoke", out=str(tmp_path), world="freeway")
-    assert _files(work / "checkpoints") | _files(work / "models") | _files(runs[0] / "mode0-seed0") == before
+    assert _files(work / "checkpoints") | _files(work / "models") | _files(played) == before
     rerun = (work / "report" / "report.md").read_text()
     assert "cached, 1 epochs" in rerun and "0 recorded now" in rerun and "8 episodes: 0 added" in rerun

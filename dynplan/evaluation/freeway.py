@@ -209,14 +209,17 @@ SCOREBOARD = {"random": 0.0, "human": 29.6, "SimPLe": 16.7, "TWM": 24.3, "IRIS":
 EVALUATION_COMMAND = "python -m flows.evaluate --world freeway --modes 0 4 --episodes 20 --seed 0 --horizon 8"
 
 
-def results_section(results: str | os.PathLike, run: str = "evaluation", command: str = EVALUATION_COMMAND,
-                    played: str = "two processes on 2 cores") -> list[str]:  # fmt: skip
-    """The results page's Freeway section from the run's result files (none if the run is not there): a row per
-    technique and horizon, a column per mode; `command` is the one that played the run, `played` how (the times'
-    conditions)."""
+def results_section(results: str | os.PathLike, run: str = "evaluation") -> list[str]:
+    """The results page's Freeway section from the run's result files (none if the run is not there)."""
     if not Path(results, run).is_dir():
         return []
-    rows = summarise(read_run(results, run))
+    return results_table(read_run(results, run), EVALUATION_COMMAND, "two processes on 2 cores")
+
+
+def results_table(results: list[FreewayResult], command: str, played: str) -> list[str]:
+    """A Freeway section: a row per technique and horizon, a column per mode, the learned agent against the oracle
+    and the scoreboard; `command` is the one that played the episodes, `played` how (the times' conditions)."""
+    rows = summarise(results)
     modes = sorted({row["mode"] for row in rows})
     cells: dict[tuple[str, int], dict[int, dict]] = {}
     for row in rows:

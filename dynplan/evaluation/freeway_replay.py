@@ -55,9 +55,10 @@ def chicken_position(chicken: Chicken) -> np.ndarray:
 
 
 def track(turns: list[Turn], noop_start: int) -> AgentTrack:
-    """The chicken's track through the turns, the first pose at frame `noop_start`."""
+    """The chicken's track through the turns, the first pose at frame `noop_start`; its last outcome is "timeout"
+    where the game ended (2,048 steps), "running" where the turns stop before."""
     chickens = [turns[0].chicken] + [turn.step.chicken for turn in turns]
-    outcomes = ("running",) * (len(turns) - 1) + ("timeout",)
+    outcomes = ("running",) * (len(turns) - 1) + ("timeout" if turns[-1].step.done else "running",)
     positions = np.stack([chicken_position(c) for c in chickens])
     return AgentTrack(t=noop_start + np.arange(len(chickens)), position=positions,
                       action=np.array([turn.action for turn in turns]),

@@ -16,6 +16,7 @@ from dynplan.env.freeway import record_mode
 from dynplan.evaluation import freeway
 from dynplan.evaluation.freeway_replay import GIF_STEPS, replay_gif
 from dynplan.files import write_bytes_atomic
+from dynplan.models.checkpoint import digest
 from dynplan.pipeline.presets import FreewayEvalPlan
 from dynplan.planning.chicken import ChickenSearch
 
@@ -41,10 +42,33 @@ def draw_gif(out: Path, model_dir: Path, plan: FreewayEvalPlan) -> str:
     return GIF_NAME
 
 
-def results_section(results: Path, run: str, command: str, gif: str | None) -> list[str]:
+#: The run of the techniques that do not read the world model: their episodes hold whatever the weights.
+REFERENCE_RUN = "reference"
+
+
+def weights_run(model_dir: Path) -> str:
+    """The run of the learned technique's episodes: named by the checkpoints' SHA-256, so new weights play anew and
+    the same weights reuse what they played."""
+    return "weights-" + digest(*(sha256_file(model_dir / f"{s}.pt") for s in ("vqvae", "pixelcnn")))[:12]
+
+
+def run_of(technique: str, model_dir: Path) -> str:
+    """The run `technique`'s episodes go to."""
+    return weights_run(model_dir) if technique == "learned" else REFERENCE_RUN
+
+
+def planned_results(results: Path, model_dir: Path, plan: FreewayEvalPlan) -> list[freeway.FreewayResult]:
+    """The results of exactly the plan's episodes (each technique's from its run), none other a run may hold."""
+    return [
+        freeway.read_result(freeway.result_path(results, run_of(t, model_dir), t, mode_plan, plan.horizon, i))
+        for mode_plan in plan.plans() for t in plan.techniques for i in range(plan.episodes)
+    ]  # fmt: skip
+
+
+def results_section(rows: list[freeway.FreewayResult], command: str, gif: str | None) -> list[str]:
     """The run's Freeway table (a row per technique, a column per mode) and, when drawn, the learned agent's GIF."""
     played = "the episodes played at once by the run's task runner"
-    lines = freeway.results_section(results, run, command, played) or ["## Atari Freeway", "", "(no results)", ""]
+    lines = freeway.results_table(rows, command, played)
     if gif:
         lines += [
             "The learned agent's first steps (lanes now with the chicken | true lanes k steps on | the lanes "

@@ -115,6 +115,15 @@ class PipelinePreset(Config):
     evaluation: Evaluation = Field(default_factory=EvalPlan)
     report_episodes: int = Field(10, ge=1, le=100, description="held-out episodes for the prediction-error figure")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _evaluation_of_the_world(cls, data: Any) -> Any:
+        """An evaluation given without its world, or none, is the run's world's."""
+        if isinstance(data, dict) and isinstance(evaluation := data.get("evaluation", {}), dict):
+            world = data.get("world", DEFAULT_WORLD)
+            data = {**data, "evaluation": {"world": world if world in WORLDS else DEFAULT_WORLD, **evaluation}}
+        return data
+
     @model_validator(mode="after")
     def _check(self) -> PipelinePreset:
         if self.world not in WORLDS:
@@ -225,8 +234,8 @@ _ROAD_PRESETS: dict[str, PipelinePreset] = {
     ),
 }
 
-# Freeway's quick budgets: the tokenizer's epoch of 1,000 batches takes about 20 s on 2 cores, the prior's of 500
-# about a minute; validation scores few items. `--world freeway --preset quick` measured in docs/benchmarks.md.
+# Freeway's quick budgets: the tokenizer's epoch of 1,000 batches takes about 18 s on 2 cores, the prior's of 500
+# about 100 s; validation scores few items. `--world freeway --preset quick` is measured in docs/worlds.md.
 _FREEWAY_QUICK_VQVAE = StagePlan(budget=TrainBudget(epochs=12, steps_per_epoch=1000, val_frames=200))
 _FREEWAY_QUICK_PIXELCNN = StagePlan(budget=TrainBudget(epochs=4, steps_per_epoch=500, val_frames=100))
 _FREEWAY_SMOKE_VQVAE = StagePlan(
