@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import warnings
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -50,14 +49,14 @@ from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.logs.recording import read_recorded_log
 from dynplan.models.checkpoint import CheckpointError
-from dynplan.paths import PathArgument, PathKind, check_output
+from dynplan.paths import PathArgument, PathKind
 from dynplan.play import HORIZONS, PlayState
 from dynplan.render import error_image, upscale
+from flows.window import checked_window_options
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
 MOVE_KEYS = {"w": 90, "e": 45, "d": 0, "c": -45, "x": -90, "z": -135, "a": 180, "q": 135,
              "up": 90, "right": 0, "down": -90, "left": 180}  # fmt: skip
-INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame)"
 GAP = 8
 
 
@@ -240,24 +239,7 @@ def main(argv: Sequence[str] | None = None) -> PlayState | FreewayPlay:
     if args.world != DEFAULT_WORLD:  # an abbreviated --world reaches here: spell it out to dispatch
         parser.error(f"--world {args.world}: give it as --world {args.world} (in full) for its own options")
     inputs = () if args.log is None else (args.log,)
-    for option, path in (("--record", args.record), ("--screenshot", args.screenshot)):
-        if path is not None:
-            try:
-                check_output(path, option, "file", inputs=inputs)
-            except ValueError as error:
-                parser.error(str(error))
-    try:
-        import pygame
-    except ImportError:
-        parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
-    script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
-    for key in script or ():
-        try:
-            with warnings.catch_warnings():  # the names are pygame's own before its display is initialised
-                warnings.simplefilter("ignore")
-                pygame.key.key_code(key)
-        except ValueError:
-            parser.error(f"--script: {key!r} is not a key name (e.g. up, left, space, p, escape)")
+    script = checked_window_options(parser, args, inputs)
     try:
         state = build_state(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
                             not args.no_imagination)  # fmt: skip

@@ -20,7 +20,6 @@ Keys:
 from __future__ import annotations
 
 import argparse
-import warnings
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -32,13 +31,13 @@ from dynplan.evaluation.freeway import PLANNERS, world_model_for
 from dynplan.evaluation.freeway_play import HORIZONS, FreewayPlay
 from dynplan.files import atomic_path
 from dynplan.models.checkpoint import CheckpointError
-from dynplan.paths import PathArgument, PathKind, check_output
+from dynplan.paths import PathArgument, PathKind
 from dynplan.planning.chicken import ChickenSearch
 from dynplan.render import error_image, upscale
+from flows.window import checked_window_options
 
 #: Key name → the chicken's action (0 NOOP, 1 UP, 2 DOWN).
 ACTION_KEYS = {"w": 1, "up": 1, "x": 2, "down": 2, "s": 0}
-INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame)"
 GAP = 8
 
 
@@ -170,24 +169,7 @@ def main(argv: Sequence[str] | None = None) -> FreewayPlay:
     args = parser.parse_args(argv)
     if args.model_dir is not None and args.technique != "learned":
         parser.error(f"--model-dir: only with --technique learned (--technique {args.technique} reads no world model)")
-    for option, path in (("--record", args.record), ("--screenshot", args.screenshot)):
-        if path is not None:
-            try:
-                check_output(path, option, "file")
-            except ValueError as error:
-                parser.error(str(error))
-    try:
-        import pygame
-    except ImportError:
-        parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
-    script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
-    for key in script or ():
-        try:
-            with warnings.catch_warnings():  # the names are pygame's own before its display is initialised
-                warnings.simplefilter("ignore")
-                pygame.key.key_code(key)
-        except ValueError:
-            parser.error(f"--script: {key!r} is not a key name (e.g. up, down, s, p, escape)")
+    script = checked_window_options(parser, args)
     try:
         model = world_model_for(args.technique, args.model_dir)
         state = FreewayPlay(FreewayEpisode(mode=args.mode, noop_start=args.noop_start), args.technique, args.horizon,
