@@ -51,13 +51,12 @@ from dynplan.logs.recording import read_recorded_log
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.paths import PathArgument, PathKind
 from dynplan.play import HORIZONS, PlayState
-from dynplan.render import error_image, upscale
-from flows.window import checked_window_options
+from dynplan.render import error_image
+from flows.window import PanelWindow, checked_window_options
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
 MOVE_KEYS = {"w": 90, "e": 45, "d": 0, "c": -45, "x": -90, "z": -135, "a": 180, "q": 135,
              "up": 90, "right": 0, "down": -90, "left": 180}  # fmt: skip
-GAP = 8
 
 
 def action_of(heading: int) -> int:
@@ -86,44 +85,29 @@ def build_state(seed: int | None = None, log: str | None = None, agent_speed: fl
     return PlayState(world, agent_speed, imagined, planner, forward, k)
 
 
-class Window:
+class Window(PanelWindow):
     """The pygame window: what you play in, the true world, and the divergence or the planner's prediction."""
 
     def __init__(self, state: PlayState, scale: int = 8):
-        import pygame
-
-        self.pygame, self.state, self.scale = pygame, state, scale
-        pygame.display.init()
-        pygame.font.init()
-        H, W = state.world.frames.shape[1:]
-        self.panel = (W * scale, H * scale)
-        self.screen = pygame.display.set_mode((3 * self.panel[0] + 4 * GAP, self.panel[1] + 150))
-        pygame.display.set_caption("dynplan play")
-        self.font = pygame.font.Font(None, 22)
-
-    def _blit(self, image: np.ndarray, column: int, title: str) -> None:
-        surface = self.pygame.surfarray.make_surface(upscale(image, self.scale).transpose(1, 0, 2))
-        x = GAP + column * (self.panel[0] + GAP)
-        self.screen.blit(surface, (x, 28))
-        self.screen.blit(self.font.render(title, True, (230, 230, 230)), (x, 6))
+        super().__init__(state.world.frames.shape[1:], 3, scale, "dynplan play", 150)
+        self.state = state
 
     def draw(self, planner_plays: bool, paused: bool) -> None:
         s = self.state
         self.screen.fill((20, 20, 24))
-        self._blit(colorize(s.frame, s.position), 0, f"playing in the {s.place}")
-        self._blit(colorize(s.true_frame, s.position), 1, "the true world")
+        self.blit(colorize(s.frame, s.position), 0, f"playing in the {s.place}")
+        self.blit(colorize(s.true_frame, s.position), 1, "the true world")
         if s.place == "imagination":
-            self._blit(error_image(s.true_frame, s.frame), 2, "imagined vs true (red: missed, blue: extra)")
+            self.blit(error_image(s.true_frame, s.frame), 2, "imagined vs true (red: missed, blue: extra)")
         elif s.last_prediction is not None and planner_plays:
             ahead = s.last_prediction.frames
-            self._blit(error_image(s.world.frames[min(s.t + len(ahead) - 1, len(s.world.frames) - 1)], ahead[-1]),
+            self.blit(error_image(s.world.frames[min(s.t + len(ahead) - 1, len(s.world.frames) - 1)], ahead[-1]),
                        2, f"predicted t + {len(ahead)} vs true")  # fmt: skip
         who = ("planner plays" + (" (paused)" if paused else "")) if planner_plays else "you play"
         lines = [f"t = {s.t}   {who}   k = {s.k}   outcome: {s.outcome}",
                  "move: W E D C X Z A Q or arrows   I: imagination   K: horizon   P: planner/you   SPACE: pause",
                  "R: restart   ESC: quit"]  # fmt: skip
-        for i, line in enumerate(lines):
-            self.screen.blit(self.font.render(line, True, (230, 230, 230)), (GAP, self.panel[1] + 40 + 24 * i))
+        self.text(lines)
         self.pygame.display.flip()
 
 

@@ -33,12 +33,11 @@ from dynplan.files import atomic_path
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.paths import PathArgument, PathKind
 from dynplan.planning.chicken import ChickenSearch
-from dynplan.render import error_image, upscale
-from flows.window import checked_window_options
+from dynplan.render import error_image
+from flows.window import PanelWindow, checked_window_options
 
 #: Key name → the chicken's action (0 NOOP, 1 UP, 2 DOWN).
 ACTION_KEYS = {"w": 1, "up": 1, "x": 2, "down": 2, "s": 0}
-GAP = 8
 
 
 def lanes_with_chicken(state: FreewayPlay) -> np.ndarray:
@@ -48,44 +47,29 @@ def lanes_with_chicken(state: FreewayPlay) -> np.ndarray:
     return image
 
 
-class Window:
+class Window(PanelWindow):
     """The pygame window: the lanes now with the chicken, the true lanes k steps on, those the planner sees there,
     and their error."""
 
     def __init__(self, state: FreewayPlay, scale: int = 3):
-        import pygame
-
-        self.pygame, self.state, self.scale = pygame, state, scale
-        pygame.display.init()
-        pygame.font.init()
-        H, W = state.frame.shape
-        self.panel = (W * scale, H * scale)
-        self.screen = pygame.display.set_mode((4 * self.panel[0] + 5 * GAP, self.panel[1] + 110))
-        pygame.display.set_caption("dynplan play: Freeway")
-        self.font = pygame.font.Font(None, 22)
-
-    def _blit(self, image: np.ndarray, column: int, title: str) -> None:
-        surface = self.pygame.surfarray.make_surface(upscale(image, self.scale).transpose(1, 0, 2))
-        x = GAP + column * (self.panel[0] + GAP)
-        self.screen.blit(surface, (x, 28))
-        self.screen.blit(self.font.render(title, True, (230, 230, 230)), (x, 6))
+        super().__init__(state.frame.shape, 4, scale, "dynplan play: Freeway", 110)
+        self.state = state
 
     def draw(self, planner_plays: bool, paused: bool) -> None:
         s, k = self.state, self.state.search.horizon
         truth, seen = s.true_frame(k), s.look_ahead()[-1]
         self.screen.fill((20, 20, 24))
-        self._blit(lanes_with_chicken(s), 0, "the lanes now")
-        self._blit(colorize(truth), 1, f"true, t + {k}")
-        self._blit(colorize(seen), 2, f"{s.technique} sees, t + {k}")
-        self._blit(error_image(truth, seen, "freeway"), 3, "error (red: missed, blue: extra)")
+        self.blit(lanes_with_chicken(s), 0, "the lanes now")
+        self.blit(colorize(truth), 1, f"true, t + {k}")
+        self.blit(colorize(seen), 2, f"{s.technique} sees, t + {k}")
+        self.blit(error_image(truth, seen, "freeway"), 3, "error (red: missed, blue: extra)")
         who = ("planner plays" + (" (paused)" if paused else "")) if planner_plays else "you play"
         state = "game over" if not s.running else ("knocked back" if s.chicken.knocked else "")
         lines = [
             f"t = {s.t}   score {s.score:g}   {who}   k = {k}   {state}",
             "W/UP: up   X/DOWN: down   S: wait   K: horizon   P: planner/you   SPACE: pause   R: restart",
         ]
-        for i, line in enumerate(lines):
-            self.screen.blit(self.font.render(line, True, (230, 230, 230)), (GAP, self.panel[1] + 40 + 24 * i))
+        self.text(lines)
         self.pygame.display.flip()
 
 

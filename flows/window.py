@@ -1,5 +1,6 @@
-"""What a play window checks before it opens, whichever world it plays: its output files, pygame, and the key names
-of a headless script — each refused in one line by the command's parser."""
+"""The play windows' common parts, whichever world they play: a window of titled panels side by side with lines of
+text below (`PanelWindow`), and what a play command checks before it opens one — its output files, pygame, and the
+key names of a headless script, each refused in one line by the command's parser."""
 
 from __future__ import annotations
 
@@ -7,9 +8,44 @@ import argparse
 import warnings
 from collections.abc import Sequence
 
+import numpy as np
+
 from dynplan.paths import check_output
+from dynplan.render import upscale
 
 INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame)"
+#: Pixels between panels.
+GAP = 8
+
+
+class PanelWindow:
+    """A pygame window of `panels` images of `shape` (H, W) side by side, each enlarged `scale` times under its
+    title, and `text_height` pixels of text below."""
+
+    def __init__(self, shape: tuple[int, int], panels: int, scale: int, caption: str, text_height: int) -> None:
+        import pygame
+
+        self.pygame, self.scale = pygame, scale
+        pygame.display.init()
+        pygame.font.init()
+        self.panel = (shape[1] * scale, shape[0] * scale)
+        self.screen = pygame.display.set_mode(
+            (panels * self.panel[0] + (panels + 1) * GAP, self.panel[1] + text_height)
+        )
+        pygame.display.set_caption(caption)
+        self.font = pygame.font.Font(None, 22)
+
+    def blit(self, image: np.ndarray, column: int, title: str) -> None:
+        """An RGB image (H, W, 3) into panel `column`, under `title`."""
+        surface = self.pygame.surfarray.make_surface(upscale(image, self.scale).transpose(1, 0, 2))
+        x = GAP + column * (self.panel[0] + GAP)
+        self.screen.blit(surface, (x, 28))
+        self.screen.blit(self.font.render(title, True, (230, 230, 230)), (x, 6))
+
+    def text(self, lines: Sequence[str]) -> None:
+        """Lines of text below the panels."""
+        for i, line in enumerate(lines):
+            self.screen.blit(self.font.render(line, True, (230, 230, 230)), (GAP, self.panel[1] + 40 + 24 * i))
 
 
 def checked_window_options(parser: argparse.ArgumentParser, args: argparse.Namespace,
