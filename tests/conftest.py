@@ -85,3 +85,10 @@ def dask_cluster(tmp_path_factory) -> Iterator[DaskCluster]:
                 proc.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 proc.kill()
+
+
+@pytest.fixture
+def headless_window(monkeypatch):
+    """pygame windows open on SDL's dummy video and audio drivers (the play tests feed them real key events)."""
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+    monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")

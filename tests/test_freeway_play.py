@@ -20,13 +20,8 @@ from flows.play import main  # noqa: E402
 from flows.play_freeway import ACTION_KEYS, play  # noqa: E402
 from flows.view import main as view  # noqa: E402
 
+pytestmark = pytest.mark.usefixtures("headless_window")
 EPISODE = FreewayEpisode(mode=0, noop_start=5)
-
-
-@pytest.fixture(autouse=True)
-def headless(monkeypatch):
-    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
-    monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
 
 
 def test_help_lists_the_keys_and_a_bad_option_names_its_range(capsys):

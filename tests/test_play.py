@@ -16,14 +16,9 @@ pygame = pytest.importorskip("pygame")
 
 from flows.play import MOVE_KEYS, action_of, build_state, main, play  # noqa: E402
 
+pytestmark = pytest.mark.usefixtures("headless_window")
 SEED = 2_000_003
 KEY_OF_ACTION = {action_of(heading): key for key, heading in MOVE_KEYS.items() if len(key) == 1}
-
-
-@pytest.fixture(autouse=True)
-def headless(monkeypatch):
-    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
-    monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
 
 
 def test_help_lists_the_modes_and_the_keys(capsys):

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dynplan.env.freeway import Chicken, FreewayEpisode, FreewayGame, FreewayStep, record_mode
+from dynplan.env.freeway import ACTIONS, Chicken, FreewayEpisode, FreewayGame, FreewayStep, record_mode
 from dynplan.evaluation.freeway import OBSERVED, PLANNERS, Turn, check_technique, searched_frames
 from dynplan.evaluation.freeway_replay import track
 from dynplan.logs.writer import write_episode_log
@@ -90,8 +90,8 @@ class FreewayPlay:
         """Play `action` (0 NOOP, 1 UP, 2 DOWN) on the real game; `decision_ms` when a planner chose it."""
         if not self.running:
             raise ValueError("the game has ended; reset to play again")
-        if action not in (0, 1, 2):
-            raise ValueError(f"action={action} is invalid; valid range [0, 2] (NOOP, UP, DOWN)")
+        if not 0 <= action < len(ACTIONS):
+            raise ValueError(f"action={action} is invalid; valid range [0, {len(ACTIONS) - 1}] ({', '.join(ACTIONS)})")
         chicken, frames = self.chicken, self.look_ahead() if decision_ms is not None else None
         step = self.game.step(action)
         self.turns.append(Turn(chicken, frames, action, decision_ms, step))
