@@ -12,8 +12,8 @@ import numpy as np
 
 from dynplan.env.colors import colorize, palette
 from dynplan.env.config import GOAL_VALUE
-from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.files import write_bytes_atomic
+from dynplan.world import DEFAULT_WORLD, world
 
 
 def upscale(images: np.ndarray, scale: int) -> np.ndarray:

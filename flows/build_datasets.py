@@ -27,9 +27,9 @@ from dynplan.cli import CommandParser, add_debug_option
 from dynplan.data.build import build_frame_store
 from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem, store_world
 from dynplan.data.verify import verify_store
-from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
+from dynplan.world import DEFAULT_WORLD, world_names
 from flows.cli import run
 from flows.runners import add_dask_option, checked_dask_address, dask_scheduler, task_runner
 
@@ -87,7 +87,7 @@ def main(argv: list[str] | None = None) -> dict:
                         help="Zarr store to create or extend")  # fmt: skip
     parser.add_argument("--verify", metavar="STORE", type=PathArgument(PathKind.STORE),
                         help="check every chunk of STORE (and repair it from LOG_DIR)")  # fmt: skip
-    parser.add_argument("--world", choices=list(WORLDS), default=None,
+    parser.add_argument("--world", choices=world_names(), default=None,
                         help=f"the world of the store's logs (default: the store's, else {DEFAULT_WORLD})")  # fmt: skip
     add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the report as JSON")

@@ -1,7 +1,8 @@
 """`python -m flows.collect`: record episodes as MCAP logs, one Prefect task per episode, resumably.
 
-Episode i uses seed S + i (`--world freeway`: the seed is the game mode, 0–7). Rerunning skips complete logs and
-rewrites damaged ones, so an interrupted collection is finished by running the same command again.
+Episode i uses seed S + i, within the world's seeds (an error names their range and what a seed is there). Rerunning
+skips complete logs and rewrites damaged ones, so an interrupted collection is finished by running the same command
+again.
 """
 
 from __future__ import annotations
@@ -17,9 +18,9 @@ from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import field_help
 from dynplan.data.collect import CollectPlan, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
-from dynplan.env.worlds import DEFAULT_WORLD, ROAD, WORLDS, world
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
+from dynplan.world import DEFAULT_WORLD, world, world_names
 from flows.cli import run
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 
@@ -54,16 +55,16 @@ def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int =
 
 def main(argv: list[str] | None = None) -> dict:
     parser = CommandParser(prog="python -m flows.collect", description=__doc__)
-    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
+    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD,
                         help=f"the world to record (default {DEFAULT_WORLD})")  # fmt: skip
     parser.add_argument("--episodes", type=bounded(CollectPlan, "episodes"), default=None,
                         help=field_help(CollectPlan, "episodes", "10, or the world's episodes from --seed on if fewer "
-                                        "(freeway: its 8 modes)"))  # fmt: skip
+                                        "(a world of 8 episodes: its 8)"))  # fmt: skip
     parser.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=0, help=field_help(CollectPlan, "seed"))
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/logs",
                         help="folder for the logs (default datasets/logs)")  # fmt: skip
     parser.add_argument("--level", type=bounded(RoadConfig, "level"), default=None,
-                        help=field_help(RoadConfig, "level", str(ROAD.recording.level)) + "; the road's")  # fmt: skip
+                        help=field_help(RoadConfig, "level", str(RoadConfig().level)) + "; the road's")  # fmt: skip
     parser.add_argument(
         "--agent-speed",
         type=bounded(RoadConfig, "agent_speed"),
@@ -97,13 +98,13 @@ def main(argv: list[str] | None = None) -> dict:
 def _recording(args) -> dict:
     """The recording's config from the command line: the road's level and agent speed; other worlds take none."""
     road = {"level": args.level, "agent_speed": args.agent_speed}
-    if args.world != ROAD.name:
+    if args.world != DEFAULT_WORLD:
         given = [f"--{name.replace('_', '-')}" for name, value in road.items() if value is not None]
         if given:
             raise ValueError(f"{' and '.join(given)}: the road world's, not --world {args.world}'s")
         return world(args.world).recording.model_dump()
     chosen = {k: v for k, v in road.items() if v is not None}
-    return RoadConfig.from_dict(ROAD.recording.model_dump(), **chosen).model_dump()
+    return RoadConfig.from_dict(world(DEFAULT_WORLD).recording.model_dump(), **chosen).model_dump()
 
 
 if __name__ == "__main__":

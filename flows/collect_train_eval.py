@@ -1,15 +1,16 @@
-"""`python -m flows.collect_train_eval [--world road|freeway] [--preset quick|full|smoke] [--out DIR]
-[--dask-address …]`: the whole system end to end — collect training episodes, build the frames store, train the
-VQ-VAE, encode the store, train the PixelCNN prior (per world-model configuration), evaluate the planners (the
-road's over its recorded evaluation episodes, Freeway's on the real game), and write the report
-(`DIR/<folder>/report/report.md` and `.html`; the folder is the preset's name, `freeway-<preset>` for Freeway).
+"""`python -m flows.collect_train_eval [--world W] [--preset quick|full|smoke] [--out DIR] [--dask-address …]`:
+the whole system end to end — collect training episodes, build the frames store, train the VQ-VAE, encode the
+store, train the PixelCNN prior (per world-model configuration), evaluate the planners (the road's over its
+recorded evaluation episodes, another world's through its `PipelineStages`), and write the report
+(`DIR/<folder>/report/report.md` and `.html`; the folder is the preset's name, `<world>-<preset>` for a world other
+than the road).
 
 Every stage is cached across runs on purpose, by what determines its result rather than by Prefect's default
 policy (which includes the flow run's id and so never hits across runs): collection skips complete logs (one
 per seed), the store skips logs it holds (by SHA-256), training runs are keyed by (store fingerprint, config,
 budget, code version) — finished ones are Prefect cache hits, interrupted ones resume from their last epoch —,
-evaluation reuses every per-episode result played with the same playouts, log and weights (Freeway's: a run per
-pair of checkpoints), and the report's pictures are redrawn only when the checkpoints change. A rerun therefore
+evaluation reuses every per-episode result played with the same playouts, log and weights (another world's as its
+stages say), and the report's pictures are redrawn only when the checkpoints change. A rerun therefore
 does only what changed, and an interrupted run resumes where it stopped.
 
 Outputs: `DIR/<folder>/{logs,frames.zarr,checkpoints,models,results,report}` and the road's evaluation logs,
@@ -34,7 +35,6 @@ from prefect.cache_policies import NO_CACHE
 from dynplan.cli import CommandParser, add_debug_option
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
-from dynplan.env.worlds import DEFAULT_WORLD, FREEWAY, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import EVAL_SEED_START, CasePlan
 from dynplan.evaluation.table import aggregate, load_results
@@ -42,8 +42,7 @@ from dynplan.files import atomic_path, write_bytes_atomic
 from dynplan.models import checkpoint as checkpoints
 from dynplan.models import pretrained_path
 from dynplan.paths import PathArgument, PathKind, check_output
-from dynplan.pipeline import freeway_report
-from dynplan.pipeline.presets import PIPELINE_PRESETS, PipelinePreset, pipeline_preset
+from dynplan.pipeline.presets import PipelinePreset, pipeline_preset, pipeline_presets
 from dynplan.pipeline.report import (
     StageRecord,
     checkpoint_record,
@@ -53,14 +52,15 @@ from dynplan.pipeline.report import (
     table_section,
     write_report,
 )
+from dynplan.world import DEFAULT_WORLD, world, world_names
 from flows.artifacts import publish_report
 from flows.build_datasets import build_datasets
 from flows.cli import run
 from flows.collect import collect_episodes
 from flows.evaluate import evaluate_planner
-from flows.evaluate_freeway import evaluate_freeway
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 from flows.train import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
+from flows.worlds import evaluate_world
 
 
 def _install(source: Path, target: Path) -> None:
@@ -146,19 +146,15 @@ def report_task(preset: dict, work: str, eval_logs: str, command: str, stages: l
     return _write_report(plan, work_dir, command, table_section(rows) + figures_section(figures), records)
 
 
-@task(name="report-freeway", cache_policy=NO_CACHE)
-def freeway_report_task(preset: dict, work: str, results: str, command: str, stages: list[dict]) -> str:
-    """Freeway's report: the plan's episodes on the real game and the learned agent's GIF."""
+@task(name="report-world", cache_policy=NO_CACHE)
+def world_report_task(preset: dict, work: str, results: str, command: str, stages: list[dict]) -> str:
+    """Another world's report: the results section its stages write (pictures into the report's folder)."""
     plan, work_dir = PipelinePreset(**preset), Path(work)
-    models = work_dir / "models" / plan.models[0]
     start = time.perf_counter()
-    gif = None
-    if plan.learned_techniques:
-        gif = freeway_report.draw_gif(work_dir / "report", models, plan.evaluation)
+    section = world(plan.world).load().pipeline.report(plan, work_dir, work_dir / "report", command)
     records = [StageRecord(**s) for s in stages]
-    records.append(StageRecord("report", time.perf_counter() - start, "GIF, Markdown and HTML"))
-    rows = freeway_report.planned_results(Path(results), models, plan.evaluation)
-    return _write_report(plan, work_dir, command, freeway_report.results_section(rows, command, gif), records)
+    records.append(StageRecord("report", time.perf_counter() - start, "pictures, Markdown and HTML"))
+    return _write_report(plan, work_dir, command, section, records)
 
 
 def _evaluate_road(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
@@ -173,22 +169,20 @@ def _evaluate_road(plan: PipelinePreset, work: Path, out: str, runner, command: 
     return str(eval_logs), f"{len(rows)} table rows"
 
 
-def _evaluate_freeway(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
-    """The plan's episodes on the real game: the learned technique's into a run named by the checkpoints, the others'
-    into the reference run (they do not read the weights); (the results folder, evaluation detail)."""
-    e, models, results = plan.evaluation, work / "models" / plan.models[0], work / "results"
-    by_run: dict[str, list[str]] = {}
-    for technique in e.techniques:
-        by_run.setdefault(freeway_report.run_of(technique, models), []).append(technique)
-    for run_name, techniques in by_run.items():
-        evaluate_freeway.with_options(task_runner=runner)(
-            techniques=techniques, modes=list(e.modes), episodes=e.episodes, seed=e.seed, horizon=e.horizon,
-            results=str(results), run=run_name, model_dir=str(models))  # fmt: skip
-    return str(results), f"{len(e.modes) * len(e.techniques) * e.episodes} episodes, runs {', '.join(by_run)}"
+def _evaluate_world(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
+    """The preset's evaluation requests, each through the world's evaluation; (the results folder, detail)."""
+    requests = world(plan.world).load().pipeline.evaluations(plan, work)
+    played = 0
+    for request in requests:
+        flow = evaluate_world.with_options(task_runner=runner)
+        played += len(flow(plan.world, request.model_dump(mode="json"), command))
+    return str(work / "results"), f"{len(requests)} runs, {played} summary rows"
 
 
-#: Per world: its evaluation stage and its report task (the evaluation's first result is the report's input).
-_WORLD_STAGES = {DEFAULT_WORLD: (_evaluate_road, report_task), FREEWAY.name: (_evaluate_freeway, freeway_report_task)}
+def _stages(world_name: str) -> tuple:
+    """The world's evaluation stage and report task: its own `PipelineStages`, or the road's."""
+    own = world_name != DEFAULT_WORLD and world(world_name).load().pipeline is not None
+    return (_evaluate_world, world_report_task) if own else (_evaluate_road, report_task)
 
 
 @flow(name="collect-train-eval", log_prints=True)
@@ -218,7 +212,7 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
         lambda r: f"{r['episodes']} episodes: {len(r['added'])} added")  # fmt: skip
     for model in plan.models:
         stages += world_model_task(plan.model_dump(mode="json"), model, store, str(work))
-    evaluate, report_of = _WORLD_STAGES[plan.world]
+    evaluate, report_of = _stages(plan.world)
     played = timed("evaluate", lambda: evaluate(plan, work, out, runner, command), lambda r: r[1])
     report = report_of(plan.model_dump(mode="json"), str(work), played[0], command, stages)
     print(f"report: {report}")
@@ -228,8 +222,9 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
 def main(argv: list[str] | None = None) -> str:
     parser = CommandParser(prog="python -m flows.collect_train_eval", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD, help="the world (default road)")
-    parser.add_argument("--preset", default="quick", choices=sorted({n for p in PIPELINE_PRESETS.values() for n in p}),
+    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD, help="the world (default road)")
+    names = sorted({name for w in world_names() for name in pipeline_presets(w)})
+    parser.add_argument("--preset", default="quick", choices=names,
                         help="run scale (each world has its own quick, full and smoke)")  # fmt: skip
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets",
                         help="output folder (default: datasets)")  # fmt: skip

@@ -8,8 +8,8 @@ so an interrupted evaluation resumes per episode — then aggregates the evaluat
 table1.md. The run `evaluation` is Table 1's; `--first-seed 2000000` with another `--log-dir` and `--run` plays the
 validation episodes instead, where a world model's settings are chosen (`--occupancy`, `--margin`, `--model-dir`);
 any other run on the evaluation episodes is a candidate's. `--table1` plays every case of the complete Table 1
-(both world-model configurations, every technique and speed the table lists) in one command. `--world freeway`
-evaluates Freeway's techniques on the real game instead (`flows.evaluate_freeway`).
+(both world-model configurations, every technique and speed the table lists) in one command. `--world W` evaluates
+another world through its own options (`--world W --help` lists them; `flows.worlds`).
 """
 
 from __future__ import annotations
@@ -27,9 +27,8 @@ from prefect import flow, task, unmapped
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
 
-from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded, named_world
+from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
-from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import (
     AGENT_SPEEDS,
@@ -50,10 +49,12 @@ from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
+from dynplan.world import DEFAULT_WORLD, world_names
 from flows.artifacts import ProgressArtifact, publish_table1
 from flows.cli import run
 from flows.collect import collect_episodes
 from flows.runners import add_dask_option, checked_dask_address, task_runner
+from flows.worlds import evaluate_main, own_command
 
 DEFAULT_COMMAND = "python -m flows.evaluate"
 RESULTS_DIR = "datasets/results"
@@ -129,8 +130,8 @@ def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = Non
 
 def _parser() -> argparse.ArgumentParser:
     parser = CommandParser(prog="python -m flows.evaluate", description=__doc__)
-    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
-                        help="the world (default road; `--world freeway --help` lists Freeway's options)")  # fmt: skip
+    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD,
+                        help="the world (default road; `--world W --help` lists another world's options)")  # fmt: skip
     parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=list(TECHNIQUES),
                         metavar="TECHNIQUE", help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
                         + " (default: oracle zero random)")  # fmt: skip
@@ -201,10 +202,8 @@ def _specs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[C
 
 def main(argv: list[str] | None = None) -> list[dict]:
     argv = sys.argv[1:] if argv is None else argv
-    if named_world(argv) == "freeway":
-        from flows import evaluate_freeway
-
-        return evaluate_freeway.main(argv)
+    if (own := own_command(argv, lambda parts: parts.evaluate)) is not None:
+        return evaluate_main(*own, argv)
     parser = _parser()
     args = parser.parse_args(argv)
     if args.world != DEFAULT_WORLD:  # an abbreviated --world reaches here: spell it out to dispatch

@@ -19,7 +19,7 @@ Keys:
   ESC               quit (with --record, the log is written first)
 
 With --live, every step is also served over the Foxglove WebSocket protocol (open it with the replay layout).
-`--world freeway` plays Atari Freeway's real game instead (`flows.play_freeway`; `--world freeway --help`).
+`--world W` plays another world through its own options and panels (`--world W --help`; `flows.worlds`).
 """
 
 from __future__ import annotations
@@ -31,16 +31,14 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from dynplan.cli import Bounded, CommandParser, bounded, named_world, run_command
+from dynplan.cli import Bounded, CommandParser, bounded, run_command
 from dynplan.data.collect import CollectPlan
 from dynplan.env.agent import ACTION_ANGLES_DEG
 from dynplan.env.colors import colorize
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import AGENT_SPEEDS, VALIDATION_SEED_START, road_models
-from dynplan.evaluation.freeway_play import FreewayPlay
 from dynplan.evaluation.protocol import world_agent
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.extras import MissingExtra
@@ -52,7 +50,10 @@ from dynplan.models.checkpoint import CheckpointError
 from dynplan.paths import PathArgument, PathKind
 from dynplan.play import HORIZONS, PlayState
 from dynplan.render import error_image
+from dynplan.world import DEFAULT_WORLD, world_names
+from dynplan.world_parts import PlayState as WorldPlayState
 from flows.window import PanelWindow, checked_window_options
+from flows.worlds import own_command, play_main
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
 MOVE_KEYS = {"w": 90, "e": 45, "d": 0, "c": -45, "x": -90, "z": -135, "a": 180, "q": 135,
@@ -180,8 +181,8 @@ def play(state: PlayState, scale: int = 8, fps: float = 8.0, planner_plays: bool
 def _parser() -> CommandParser:
     parser = CommandParser(prog="python -m flows.play", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
-                        help="the world (default road; `--world freeway --help` lists Freeway's options)")  # fmt: skip
+    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD,
+                        help="the world (default road; `--world W --help` lists another world's options)")  # fmt: skip
     source = parser.add_mutually_exclusive_group()
     source.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=None,
                         help="play the world of this seed (default 2,000,000)")  # fmt: skip
@@ -212,12 +213,10 @@ def _parser() -> CommandParser:
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> PlayState | FreewayPlay:
+def main(argv: Sequence[str] | None = None) -> PlayState | WorldPlayState:
     argv = sys.argv[1:] if argv is None else list(argv)
-    if named_world(argv) == "freeway":
-        from flows import play_freeway
-
-        return play_freeway.main(argv)
+    if (own := own_command(argv, lambda parts: parts.play)) is not None:
+        return play_main(*own, argv)
     parser = _parser()
     args = parser.parse_args(argv)
     if args.world != DEFAULT_WORLD:  # an abbreviated --world reaches here: spell it out to dispatch

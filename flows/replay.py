@@ -2,7 +2,7 @@
 
 Prints the outcome (goal / timeout / death), the steps and the time per decision; writes a replay MCAP
 (world, the agent's pose, actions and view, the planner's imagined frames) and optionally a GIF.
-`--world freeway` replays a Freeway mode's log instead (`flows.replay_freeway`).
+`--world W` replays another world's log through its own options (`--world W --help`; `flows.worlds`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,8 @@ from pathlib import Path
 
 from prefect import flow
 
-from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded, named_world
+from dynplan.cli import Bounded, CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
-from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import AGENT_SPEEDS, road_models
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
@@ -26,7 +25,9 @@ from dynplan.extras import MissingExtra, require
 from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.logs.reader import LogError
 from dynplan.paths import PathArgument, PathKind, check_output
+from dynplan.world import DEFAULT_WORLD, world_names
 from flows.cli import run
+from flows.worlds import own_command, replay_main
 
 
 @flow(name="replay-episode", log_prints=True)
@@ -49,8 +50,8 @@ def replay_episode(log: str, agent: AgentSpec | None = None, agent_speed: float 
 
 def _parser() -> argparse.ArgumentParser:
     parser = CommandParser(prog="python -m flows.replay", description=__doc__)
-    parser.add_argument("--world", choices=list(WORLDS), default=DEFAULT_WORLD,
-                        help="the world (default road; `--world freeway --help` lists Freeway's options)")  # fmt: skip
+    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD,
+                        help="the world (default road; `--world W --help` lists another world's options)")  # fmt: skip
     parser.add_argument("log", type=PathArgument(PathKind.LOG), help="episode log (.mcap) from flows.collect")
     parser.add_argument(
         "--planner",
@@ -101,10 +102,8 @@ def _agent(args: argparse.Namespace) -> AgentSpec:
 
 def main(argv: list[str] | None = None) -> dict:
     argv = sys.argv[1:] if argv is None else argv
-    if named_world(argv) == "freeway":
-        from flows import replay_freeway
-
-        return replay_freeway.main(argv)
+    if (own := own_command(argv, lambda parts: parts.replay)) is not None:
+        return replay_main(*own, argv)
     parser = _parser()
     args = parser.parse_args(argv)
     if args.world != DEFAULT_WORLD:  # an abbreviated --world reaches here: spell it out to dispatch

@@ -1,15 +1,15 @@
-"""`python -m flows.serve [--out DIR] [--dask-address …]`: serve the collect-train-eval flow as Prefect
-deployments, one per run-scale preset, so that a Prefect server's users can trigger it:
+"""`python -m flows.serve [--out DIR] [--dask-address …]`: serve the collect-train-eval flow as Prefect deployments, one
+per run-scale preset, so that a Prefect server's users can trigger it:
 
     prefect server start                           # a real server (http://127.0.0.1:4200 by default)
     export PREFECT_API_URL=http://127.0.0.1:4200/api
     python -m flows.serve                          # keeps running: it executes the triggered runs
     prefect deployment run collect-train-eval/quick --watch
 
-The deployments are the road's `collect-train-eval/quick`, `/full` and `/smoke` and Freeway's `/freeway-quick`,
-`/freeway-full` and `/freeway-smoke`; parameters can be overridden per run (`-p out=/data/dynplan`). This process
-runs the flows it receives; with a Dask scheduler address the flows' collection, conversion and evaluation tasks
-go to that cluster.
+The deployments are every world's presets: the road's `collect-train-eval/quick`, `/full` and `/smoke`, another world's
+`/<world>-quick`, `/<world>-full` and `/<world>-smoke`; parameters can be overridden per run (`-p out=/data/dynplan`).
+This process runs the flows it receives; with a Dask scheduler address the flows' collection, conversion and evaluation
+tasks go to that cluster.
 """
 
 from __future__ import annotations
@@ -20,12 +20,13 @@ from prefect import serve
 
 from dynplan.cli import Bounded, CommandParser, run_command
 from dynplan.paths import PathArgument, PathKind, check_output
-from dynplan.pipeline.presets import PIPELINE_PRESETS
+from dynplan.pipeline.presets import pipeline_presets
+from dynplan.world import world_names
 from flows.collect_train_eval import collect_train_eval
 from flows.runners import add_dask_option, checked_dask_address
 
-#: Every preset of every world by its deployment's name: the preset's folder (`quick`, `freeway-quick`, …).
-PRESETS_BY_DEPLOYMENT = {p.folder: p for presets in PIPELINE_PRESETS.values() for p in presets.values()}
+#: Every preset of every world by its deployment's name: the preset's folder (`quick`, `<world>-quick`, …).
+PRESETS_BY_DEPLOYMENT = {p.folder: p for name in world_names() for p in pipeline_presets(name).values()}
 
 
 def deployments(out: str, address: str | None, presets: list[str]) -> list:

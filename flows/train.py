@@ -23,11 +23,10 @@ from dynplan.cli import CommandParser, add_debug_option, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.data.metadata import metadata_problem
 from dynplan.data.store import store_problem, store_world
-from dynplan.env.worlds import DEFAULT_WORLD, WORLDS
 from dynplan.models import checkpoint
 from dynplan.models.checkpoint import CheckpointError, digest
 from dynplan.models.pixelcnn import PixelCNNConfig
-from dynplan.models.registry import WORLD_MODELS, default_model, models_of, world_model_spec
+from dynplan.models.registry import default_model, models_of, world_model_names, world_model_spec
 from dynplan.models.vqvae import VQVAEConfig
 from dynplan.paths import PathArgument, PathKind, check_input, check_output
 from dynplan.training.codes import build_codes
@@ -36,6 +35,7 @@ from dynplan.training.pixelcnn import train_pixelcnn
 from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
 from dynplan.training.tensorboard import INSTALL, MissingExtra, check_available
 from dynplan.training.vqvae import train_vqvae
+from dynplan.world import DEFAULT_WORLD, world_names
 from flows.artifacts import ProgressArtifact
 from flows.cli import run
 
@@ -167,11 +167,11 @@ def _parser() -> CommandParser:
     parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
     parser.add_argument("--store", type=PathArgument(PathKind.STORE),
                         help=f"frames store from flows.build_datasets (default {STORE})")  # fmt: skip
-    parser.add_argument("--world", choices=list(WORLDS), default=None,
+    parser.add_argument("--world", choices=world_names(), default=None,
                         help="the store's world, checked against the store's own (default: the store's)")  # fmt: skip
-    parser.add_argument("--model", choices=list(WORLD_MODELS),
-                        help="world-model configuration (default: the store's world's: default for the road, "
-                        "freeway for Freeway)")  # fmt: skip
+    parser.add_argument("--model", choices=world_model_names(),
+                        help="world-model configuration (default: the store's world's own: default for the road, "
+                        "a world's configuration of its own name for another)")  # fmt: skip
     parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/checkpoints",
                         help="folder for training runs")  # fmt: skip
     for name in ("epochs", "steps_per_epoch", "max_minutes", "threads"):

@@ -1,7 +1,8 @@
-"""`python -m flows.view LOG.mcap`: see an episode or replay log in Foxglove Studio, offline, with dynplan's layout.
+"""`python -m flows.view LOG.mcap`: see an episode or replay log in Foxglove Studio, offline, with its world's layout.
 
 Serves the open-source Foxglove Studio 1.48 (fetched once from the npm registry into a cache folder, checked against
-its pinned digests), the layout `dynplan/logs/layouts/replay-studio-1.48.json` and the log on 127.0.0.1, prints the
+its pinned digests), the layout of the log's world (`dynplan/logs/layouts/replay-studio-1.48.json` for the road; a
+world's own, `WorldParts.studio_layout`) and the log on 127.0.0.1, prints the
 URL to open, and serves until interrupted. With --screenshot it instead opens the view in headless Chromium, waits
 until the app has listed the log's topics and drawn its panels, writes the picture and says what the app showed.
 
@@ -17,7 +18,6 @@ import time
 from pathlib import Path
 
 from dynplan.cli import Bounded, CommandParser, InputError, add_debug_option, run_command
-from dynplan.env.worlds import WORLDS
 from dynplan.logs.format import FRAME_PERIOD_NS, STUDIO_LAYOUT, panel_topics
 from dynplan.logs.reader import read_episode_log
 from dynplan.paths import PathArgument, PathKind, check_output
@@ -25,13 +25,14 @@ from dynplan.view.app import default_cache, install
 from dynplan.view.browser import find_chromium
 from dynplan.view.capture import CaptureSettings, ViewReport, capture, view_query
 from dynplan.view.server import ViewServer, check_port, routes
+from dynplan.world import world, world_names
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = CommandParser(prog="python -m flows.view", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
     parser.add_argument("log", nargs="?", type=PathArgument(PathKind.LOG), help="an episode or replay log (.mcap)")
-    parser.add_argument("--world", choices=list(WORLDS), default=None,
+    parser.add_argument("--world", choices=world_names(), default=None,
                         help="the log's world, checked against the log's own (default: the log's)")  # fmt: skip
     parser.add_argument("--port", type=Bounded(int, 0, 65535), default=0,
                         help="the port to serve on at 127.0.0.1 (default 0: a free one)")  # fmt: skip
@@ -74,9 +75,14 @@ def _check(args: argparse.Namespace) -> None:
         raise InputError(f"--at={args.at:g} is past the log's end; valid range [0, {duration:g}] seconds")
 
 
+def studio_layout(log: Path) -> Path:
+    """The layout `log` is shown with: its world's (`WorldParts.studio_layout`), else dynplan's own."""
+    return world(read_episode_log(log).entry.name).load().studio_layout or STUDIO_LAYOUT
+
+
 def serve(log: Path, app: Path, port: int) -> None:
     """Serve the view of `log` until interrupted."""
-    table, (log_url,) = routes(app, STUDIO_LAYOUT, [log])
+    table, (log_url,) = routes(app, studio_layout(log), [log])
     with ViewServer(table, port) as server:
         print(f"Foxglove Studio with {log.name}: {server.origin}{view_query(server.origin, log_url)}", flush=True)
         print("serving on 127.0.0.1 only; Ctrl-C stops", flush=True)
@@ -87,11 +93,11 @@ def serve(log: Path, app: Path, port: int) -> None:
             print("stopped")
 
 
-def report_lines(report: ViewReport, out: Path) -> list[str]:
+def report_lines(report: ViewReport, out: Path, layout: Path = STUDIO_LAYOUT) -> list[str]:
     """What the command prints after a screenshot: the picture, the summary, and anything the app complained of."""
     lines = [f"wrote {out}: {report.summary()}"]
     lines += [f"problem: {p}" for p in report.problems]
-    reads = panel_topics(STUDIO_LAYOUT)
+    reads = panel_topics(layout)
     for panel in (p for p in report.panels if not p.drawn):
         missing = sorted(reads.get(panel.id, set()) - set(report.topics))
         lines.append(f"panel {panel.id} shows nothing" + (f": the log has no {', '.join(missing)}" if missing else ""))
@@ -114,8 +120,9 @@ def main(argv: list[str] | None = None) -> ViewReport | Path | None:
         serve(Path(args.log), app, args.port)
         return None
     settings = CaptureSettings(at_s=args.at, timeout_s=args.timeout or CaptureSettings().timeout_s, port=args.port)
-    report = capture(app, STUDIO_LAYOUT, Path(args.log), Path(args.screenshot), chromium, settings)
-    print("\n".join(report_lines(report, Path(args.screenshot))))
+    layout = studio_layout(Path(args.log))
+    report = capture(app, layout, Path(args.log), Path(args.screenshot), chromium, settings)
+    print("\n".join(report_lines(report, Path(args.screenshot), layout)))
     return report
 
 

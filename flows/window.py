@@ -47,6 +47,14 @@ class PanelWindow:
         for i, line in enumerate(lines):
             self.screen.blit(self.font.render(line, True, (230, 230, 230)), (GAP, self.panel[1] + 40 + 24 * i))
 
+    def show(self, panels: Sequence[tuple[np.ndarray, str]], lines: Sequence[str]) -> None:
+        """A whole picture: each (RGB image, title) in its panel, the lines below, on the screen."""
+        self.screen.fill((20, 20, 24))
+        for column, (image, title) in enumerate(panels):
+            self.blit(image, column, title)
+        self.text(lines)
+        self.pygame.display.flip()
+
 
 def checked_window_options(parser: argparse.ArgumentParser, args: argparse.Namespace,
                            inputs: Sequence[str] = ()) -> list[str] | None:  # fmt: skip

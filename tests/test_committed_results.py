@@ -193,3 +193,55 @@ def test_candidate_records_describe_their_weights(record):
     checkpoint = torch.load(io.BytesIO(data), map_location="cpu", weights_only=False)
     assert checkpoint["kind"] == info["stage"]
     assert checkpoint["config"] == json.loads((folder / "config.json").read_text())
+
+
+FREEWAY_RESULTS = ROOT / "datasets" / "results" / "freeway"
+
+
+def _freeway_rows() -> list[dict]:
+    from dynplan.worlds.freeway.evaluation import read_run
+
+    return read_run(FREEWAY_RESULTS, "evaluation")
+
+
+def test_freeways_committed_run_is_the_evaluation_it_names_played_with_the_committed_weights():
+    """Every (technique, mode, episode) of the committed evaluation, once, each learned row by the committed weights,
+    each with one action a step; the manifest names the world, the emulator's settings and the command."""
+    pytest.importorskip("ale_py")
+    from dynplan.worlds.freeway.evaluation import EVALUATION_COMMAND, TECHNIQUES, FreewayPlan
+    from dynplan.worlds.freeway.results import RUNS, SETTINGS, weights_entry
+
+    manifest = Run(FREEWAY_RESULTS, "evaluation", RUNS).manifest()
+    assert manifest["world"] == "freeway-v1" and manifest["settings"] == SETTINGS and manifest["role"] == "evaluation"
+    assert manifest["world_models"]["freeway"]["weights_sha256"] == weights_entry("freeway", None)["weights_sha256"]
+    assert manifest["invocations"][0]["command"] == EVALUATION_COMMAND
+    rows = _freeway_rows()
+    cases = {(r["technique"], r["mode"], r["episode"]) for r in rows}
+    assert cases == {(t, m, i) for t in TECHNIQUES for m in (0, 4) for i in range(20)} and len(rows) == len(cases)
+    for row in rows:
+        assert row["noop_start"] == FreewayPlan(mode=row["mode"], episodes=20).episode_list()[row["episode"]].noop_start
+        assert len(row["actions"]) == row["steps"] == 2048 - row["noop_start"]
+
+
+def test_freeway_rows_replay_to_their_scores_in_a_fresh_emulator():
+    """A sample of the committed rows (one per technique and mode): their actions give their score, knocks and steps
+    on the real game (the whole run: `python -m flows.evaluate --world freeway --check`, below)."""
+    pytest.importorskip("ale_py")
+    from dynplan.worlds.freeway.results import replay_check
+
+    sample = {(r["technique"], r["mode"]): r for r in _freeway_rows()}
+    assert len(sample) == 12
+    for row in sample.values():
+        assert replay_check(row) is None, (row["technique"], row["mode"], row["episode"])
+
+
+@pytest.mark.slow
+def test_every_committed_freeway_score_holds_when_its_actions_are_replayed():
+    pytest.importorskip("ale_py")
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "flows.evaluate", "--world", "freeway", "--check"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=1800)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "every row of the run holds" in done.stdout

@@ -5,12 +5,12 @@ import json
 import numpy as np
 import pytest
 
-from dynplan.analysis.deaths import CAUSES, classify_death, main, replay_death
 from dynplan.data.collect import record_episode
 from dynplan.evaluation.cases import EVAL_SEED_START, Case
 from dynplan.evaluation.protocol import run_case
 from dynplan.evaluation.provenance import begin_run
 from dynplan.evaluation.store import Run
+from lab.deaths import CAUSES, classify_death, main, replay_death
 
 SEDAN = 144
 #: Evaluation seed on which the zero-model agent (it predicts an empty road) dies at agent speed 1.0, k = 1 and 3.
@@ -82,7 +82,7 @@ def test_command_line_summarises_and_writes_the_causes(dying_case, tmp_path):
 
 
 def test_deaths_replay_with_the_caution_their_result_records(monkeypatch):
-    import dynplan.analysis.deaths as deaths
+    import lab.deaths as deaths
 
     seen = []
     monkeypatch.setattr(deaths, "replay_death", lambda case, log, playouts, models, caution: seen.append(caution))
@@ -96,7 +96,7 @@ def test_deaths_replay_with_the_caution_their_result_records(monkeypatch):
 
 
 def test_a_death_played_with_a_setting_the_code_lacks_is_not_replayed():
-    from dynplan.analysis.deaths import recorded_caution
+    from lab.deaths import recorded_caution
 
     record = {"technique": "samples5", "agent_speed": 1.0, "rollout_steps": 1, "seed": 7, "model": "default",
               "outcome": "death", "playouts": 100, "occupancy": 0.1}  # fmt: skip

@@ -7,12 +7,12 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from dynplan.analysis.context_bound import GOAL_GRID, ContextBoundModel
 from dynplan.env import RoadConfig, generate_world
 from dynplan.env.road import fold_goal, goal_box, round_px
 from dynplan.evaluation.prediction import errors_by_horizon, foreseeable_frames, miss_causes
 from dynplan.models.metrics import frame_errors
 from dynplan.planning.forward import ZeroModel
+from lab.context_bound import GOAL_GRID, ContextBoundModel
 
 
 @settings(max_examples=60, deadline=None)
@@ -136,7 +136,7 @@ def test_the_goal_bound_sharpens_with_the_context():
 def test_the_goal_shares_are_the_joint_hypotheses_counted_one_by_one(monkeypatch, seed, t, context):
     """The per-axis product equals counting every (position on the 2-D grid, folded velocity) hypothesis whose
     rounded blocks over the context match, including where the goal bounces (seed 0 at frame 22)."""
-    import dynplan.analysis.context_bound as bound
+    import lab.context_bound as bound
 
     monkeypatch.setattr(bound, "GOAL_GRID", 16)
     world = generate_world(RoadConfig(), seed)

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from dynplan.config import ConfigError
-from dynplan.env import freeway
-from dynplan.env.freeway import Chicken, FreewayEpisode, FreewayGame, chicken_step
 from dynplan.extras import MissingExtra
+from dynplan.worlds.freeway import game as freeway
+from dynplan.worlds.freeway.game import Chicken, FreewayEpisode, FreewayGame, chicken_step
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
 
@@ -129,7 +129,7 @@ def test_the_steps_frames_follow_each_lanes_cars():
     """`lane_shifts` finds each lane's move between two world frames (mode 1: up to 8 columns a step), and
     `step_frames` draws the cars part of the way: in the emulator's own frames within the step, every lane's cars
     stand within a column of where it draws them, and exactly there in most."""
-    from dynplan.env.freeway import emulator, lane_frame, lane_shifts, step_frames
+    from dynplan.worlds.freeway.game import emulator, lane_frame, lane_shifts, step_frames
 
     ale, frames = emulator(1), []
     for _ in range(4 * 60):
@@ -148,7 +148,7 @@ def test_the_steps_frames_follow_each_lanes_cars():
 
 
 def test_the_sprite_table_is_the_chickens():
-    """The measured sprites (`python -m dynplan.analysis.freeway_sprites`): one per height, a chicken-sized shape
+    """The measured sprites (`python -m lab.freeway_sprites`): one per height, a chicken-sized shape
     in the box's middle rows; a car pixel on the sprite hits, beside it does not."""
     sprites = np.load(freeway.SPRITES)
     assert sprites.shape == (freeway.TOP_Y + 1, 8, 8) and sprites.dtype == bool

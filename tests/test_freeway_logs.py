@@ -19,17 +19,18 @@ from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.collect import record_episode
 from dynplan.data.store import fingerprint, list_logs
 from dynplan.data.verify import verify_store
-from dynplan.env import freeway
-from dynplan.env.freeway import FreewayEpisode, FreewayGame, record_mode
-from dynplan.env.worlds import FREEWAY, ROAD, WORLDS, world, world_of
 from dynplan.logs.format import TOPIC_FRAME, TOPIC_GOAL
 from dynplan.logs.reader import LogError, inspect_log, read_episode_log
 from dynplan.logs.recording import read_recorded_log
 from dynplan.logs.writer import write_episode_log
+from dynplan.world import DEFAULT_WORLD, world, world_names, world_of
+from dynplan.worlds.freeway import game as freeway
+from dynplan.worlds.freeway.game import FreewayEpisode, FreewayGame, record_mode
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
 
 ROOT = Path(__file__).resolve().parents[1]
+ROAD, FREEWAY = world("road"), world("freeway")
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +39,8 @@ def mode_1() -> freeway.FreewayWorld:
 
 
 def test_the_registry_names_each_world_once_and_refuses_others():
-    assert list(WORLDS) == ["road", "freeway"] and world("road") is ROAD and world("freeway") is FREEWAY
+    assert world_names() == ["road", "freeway"] and world("road") is ROAD and world("freeway") is FREEWAY
+    assert world("freeway").id == "freeway-v1" and DEFAULT_WORLD == "road"
     assert world_of(ROAD.recording) is ROAD and world_of(FREEWAY.recording) is FREEWAY
     with pytest.raises(ConfigError, match="'atari' is not one of dynplan's worlds: road, freeway"):
         world("atari")

@@ -19,17 +19,20 @@ from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.collect import record_episode
 from dynplan.data.datasets import FrameDataset, split_of
 from dynplan.data.store import list_logs
-from dynplan.env import freeway
-from dynplan.env.worlds import FREEWAY, ROAD
 from dynplan.models import chain as chain_module
 from dynplan.models.chain import ChainSpec, chain, forget_greedy
 from dynplan.models.likelihood import Categorical
 from dynplan.models.metrics import frame_errors
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN, PixelCNNConfig, from_strips, to_strips
+from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig, from_strips, to_strips
 from dynplan.models.registry import default_model, models_of, world_model_spec
-from dynplan.models.vqvae import PRESETS, VQVAE, VQVAEConfig, padded
+from dynplan.models.vqvae import VQVAE, VQVAEConfig, padded
+from dynplan.world import world
+from dynplan.worlds.freeway import game as freeway
+from dynplan.worlds.freeway.models import PRIOR, TOKENIZER
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
+
+ROAD, FREEWAY = world("road"), world("freeway")
 
 
 @settings(max_examples=25, deadline=None)
@@ -44,7 +47,7 @@ def test_strips_cut_a_grid_into_its_rows_and_back(batch, strips, rows, width):
 
 
 def test_the_freeway_tokenizer_pads_the_lanes_onto_its_grid_and_decodes_the_frame_size():
-    config = PRESETS["freeway"]
+    config = TOKENIZER
     assert config.grid == (40, 38) and config.values == tuple(sorted(freeway.PIXEL_VALUES.values()))
     model = VQVAE(config).eval()
     frames = freeway.record_mode(0, 3).frames
@@ -119,7 +122,7 @@ def test_each_world_has_its_default_configuration():
     assert default_model("road") == "default" and default_model("freeway") == "freeway"
     assert models_of("freeway") == ["freeway"] and models_of("road") == ["paper", "default"]
     spec = world_model_spec("freeway")
-    assert spec.world == "freeway" and spec.prior == PIXELCNN_PRESETS["freeway"]
+    assert spec.world == "freeway" and spec.prior == PRIOR
 
 
 @pytest.fixture(scope="module")
@@ -142,8 +145,8 @@ def test_freeway_trains_on_modes_other_than_the_held_out_and_validation_ones(fre
 def test_a_learned_agent_plays_the_game_with_a_model_trained_on_a_freeway_store(freeway_store, prefect_api, capsys):
     """`flows.train` trains Freeway's configuration by default on a Freeway store (and refuses the road's in one
     line); the trained model imagines lanes of Freeway's values, and the learned technique plays the real game."""
-    from dynplan.evaluation.freeway import play_turns, world_model_for
-    from dynplan.planning.chicken import ChickenSearch
+    from dynplan.worlds.freeway.evaluation import play_turns, world_model_for
+    from dynplan.worlds.freeway.search import ChickenSearch
     from flows.train import main
 
     store, runs = str(freeway_store / "frames.zarr"), str(freeway_store / "runs")
@@ -165,7 +168,7 @@ def test_a_learned_agent_plays_the_game_with_a_model_trained_on_a_freeway_store(
     episode = freeway.FreewayEpisode(mode=0, noop_start=3)
     turns = list(itertools.islice(play_turns("learned", episode, ChickenSearch(horizon=3), model=model), 6))
     assert all(turn.frames.shape == (4, 154, 152) and turn.decision_ms > 0 for turn in turns)
-    assert set(np.unique(np.stack([turn.frames for turn in turns]))) <= set(PRESETS["freeway"].values)
+    assert set(np.unique(np.stack([turn.frames for turn in turns]))) <= set(TOKENIZER.values)
     with pytest.raises(ValueError, match="^technique .oracle. takes no world model$"):
         next(play_turns("oracle", episode, ChickenSearch(horizon=3), model=model))
 
@@ -176,8 +179,8 @@ def test_the_priors_validation_generates_with_the_weights_it_has_now():
     from dynplan.training.pixelcnn import _validation_scores
 
     torch.manual_seed(0)
-    config = PIXELCNN_PRESETS["freeway"].model_copy(update={"channels": 8, "layers": 2, "condition_channels": 8})
-    prior, tokenizer = ConditionalPixelCNN(config), VQVAE(PRESETS["freeway"]).eval()
+    config = PRIOR.model_copy(update={"channels": 8, "layers": 2, "condition_channels": 8})
+    prior, tokenizer = ConditionalPixelCNN(config), VQVAE(TOKENIZER).eval()
     context = torch.randint(0, 640, (3, 4, 40, 38))
     target = torch.randint(0, 640, (3, 40, 38))
     frames = tokenizer.decode(target.numpy())
@@ -197,8 +200,8 @@ def test_a_model_of_freeway_takes_no_caution_and_no_held_out_mode_trains_it(free
     from dynplan.models.caution import Caution
     from dynplan.models.world_model import LearnedWorldModel
 
-    tokenizer = VQVAE(PRESETS["freeway"])
-    prior = ConditionalPixelCNN(PIXELCNN_PRESETS["freeway"].model_copy(update={"channels": 8, "layers": 2}))
+    tokenizer = VQVAE(TOKENIZER)
+    prior = ConditionalPixelCNN(PRIOR.model_copy(update={"channels": 8, "layers": 2}))
     with pytest.raises(ValueError, match=r"caution \{'margin': 1\} reads the road's obstacle values; a model of the "
                                          "freeway world takes none"):  # fmt: skip
         LearnedWorldModel(tokenizer, prior, caution=Caution(margin=1))

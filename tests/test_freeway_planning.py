@@ -12,13 +12,14 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from dynplan.cli import InputError
 from dynplan.config import ConfigError
-from dynplan.env.freeway import BOTTOM_Y, ROAD_VALUES, Chicken, FreewayEpisode, chicken_step
-from dynplan.evaluation import freeway as evaluation
-from dynplan.evaluation.freeway import FreewayPlan, FreewayResult, evaluate_episode, read_run, summarise
-from dynplan.evaluation.freeway_replay import GIF_STEPS
-from dynplan.planning.chicken import ChickenSearch, plan_chicken
+from dynplan.evaluation.store import ROAD_RUNS, Run, StoreError
+from dynplan.worlds.freeway import evaluation
+from dynplan.worlds.freeway.evaluation import FreewayPlan, evaluate_episode, read_run, summarise
+from dynplan.worlds.freeway.game import BOTTOM_Y, ROAD_VALUES, Chicken, FreewayEpisode, chicken_step
+from dynplan.worlds.freeway.replay import GIF_STEPS
+from dynplan.worlds.freeway.results import RUNS, SETTINGS, replay_check
+from dynplan.worlds.freeway.search import ChickenSearch, plan_chicken
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
 
@@ -59,23 +60,45 @@ def test_an_evaluations_episodes_are_drawn_from_its_seed():
         FreewayPlan(mode=8)
 
 
-def test_an_evaluation_resumes_from_its_result_files(tmp_path, monkeypatch):
-    plan, search = FreewayPlan(mode=0, episodes=2, seed=0), ChickenSearch(horizon=4)
-    played = evaluate_episode(tmp_path, "run", "up", plan, 1, search)
-    assert played.episode == 1 and played.noop_start == plan.episode_list()[1].noop_start and played.score >= 20
-    other_seed = evaluate_episode(tmp_path, "run", "up", FreewayPlan(mode=0, episodes=2, seed=5), 1, search)
-    assert other_seed.noop_start == FreewayPlan(mode=0, episodes=2, seed=5).episode_list()[1].noop_start
+def _run(root, name="run"):
+    run = Run(root, name, RUNS)
+    run.start("candidate", SETTINGS, {}, "tests")
+    return run
+
+
+def test_an_evaluation_resumes_from_its_run_and_its_rows_replay(tmp_path, monkeypatch):
+    plan, search, run = FreewayPlan(mode=0, episodes=2, seed=0), ChickenSearch(horizon=4), _run(tmp_path)
+    played = evaluate_episode(run, "up", plan, 1, search)
+    assert played["episode"] == 1 and played["noop_start"] == plan.episode_list()[1].noop_start
+    assert played["score"] >= 20 and played["actions"] == "1" * played["steps"] and replay_check(played) is None
+    other_seed = evaluate_episode(run, "up", FreewayPlan(mode=0, episodes=2, seed=5), 1, search)
+    assert other_seed["noop_start"] == FreewayPlan(mode=0, episodes=2, seed=5).episode_list()[1].noop_start
     monkeypatch.setattr(evaluation, "play_episode", lambda *a, **k: pytest.fail("an episode the run holds is replayed"))
-    assert evaluate_episode(tmp_path, "run", "up", plan, 1, search) == played
-    assert (tmp_path / "run" / "mode0-seed0" / "up-k4-e001.json").is_file()
-    (tmp_path / "run" / "mode0-seed0" / "zero-k4-e000.json").write_text("{not json")
-    with pytest.raises(InputError, match="zero-k4-e000.json: not a Freeway result .* delete it"):
+    assert evaluate_episode(run, "up", plan, 1, search) == played
+    assert read_run(tmp_path, "run") == [played, other_seed]
+    assert "score 0, 0 knocks" in replay_check({**played, "actions": "0" * played["steps"]})
+    assert "not ending on the last" in replay_check({**played, "actions": played["actions"][:-1]})
+
+
+def test_a_run_refuses_a_row_it_cannot_hold(tmp_path):
+    run, plan, search = _run(tmp_path), FreewayPlan(mode=0, episodes=1), ChickenSearch(horizon=2)
+    row = evaluate_episode(run, "up", plan, 0, search)
+    for bad, why in (({"score": 1e9}, "score"), ({"score": "abc"}, "score"), ({"mode": 9}, "mode"),
+                     ({"actions": "13"}, "actions"), ({"extra": 1}, "extra"), ({"steps": True}, "steps")):  # fmt: skip
+        with pytest.raises(StoreError, match=why):
+            run.append({**row, "episode": 5, **bad})
+    (run.episodes_path).write_text(run.episodes_path.read_text() + json.dumps({**row, "score": 1e9}) + "\n")
+    with pytest.raises(StoreError, match=r"episodes.jsonl:2: field 'score' = 1000000000.0 is out of range"):
         read_run(tmp_path, "run")
+    road = Run(tmp_path, "run")  # a road run of the same name: refused, naming the world
+    with pytest.raises(StoreError, match="holds freeway-v1 episodes"):
+        Run(tmp_path, "run", ROAD_RUNS).manifest()
+    assert road.kind is RUNS
 
 
 def test_a_summary_gives_each_techniques_mean_score_and_knocks():
     def row(technique, score, knocks, ms=None):
-        return FreewayResult(technique, 0, 0, 0, 8, score, knocks, 2048, ms)
+        return {"technique": technique, "mode": 0, "horizon": 8, "score": score, "knocks": knocks, "decision_ms": ms}
 
     rows = [row("up", 21, 40), row("oracle", 34, 0, 9.0), row("up", 23, 44), row("oracle", 33, 1, 11.0)]
     summary = summarise(rows)
@@ -95,9 +118,9 @@ def test_the_oracle_plays_the_real_game_above_the_scoreboard():
 
 def test_merging_coinciding_plans_changes_no_decision():
     """The search merges action sequences that reach the same state after the same first action; the naive search
-    over all 3^k sequences (`dynplan.bench.freeway`) picks the same action along a stretch of a real game."""
-    from dynplan.bench.freeway import naive_action
-    from dynplan.env.freeway import FreewayGame, record_mode
+    over all 3^k sequences (`dynplan.worlds.freeway.bench`) picks the same action along a stretch of a real game."""
+    from dynplan.worlds.freeway.bench import naive_action
+    from dynplan.worlds.freeway.game import FreewayGame, record_mode
 
     future, game = record_mode(1, 260).frames, FreewayGame(FreewayEpisode(mode=1))
     for t in range(0, 250):
@@ -134,9 +157,9 @@ def test_a_replay_log_holds_the_modes_lanes_and_the_chickens_track(tmp_path, pre
 
 
 def test_the_lab_predictor_moves_each_lane_at_its_mean_speed():
-    """`dynplan.analysis.freeway_predictors.shifted`: a car that moved 5 columns over 4 steps is imagined 1.25
+    """`lab.freeway_predictors.shifted`: a car that moved 5 columns over 4 steps is imagined 1.25
     columns a step further on, rounded, and an empty lane stays empty."""
-    from dynplan.analysis.freeway_predictors import shifted
+    from lab.freeway_predictors import shifted
 
     observed = np.full((5, 154, 152), ROAD_VALUES[0], np.uint8)
     for step, column in enumerate((40, 41, 42, 44, 45)):
@@ -153,3 +176,24 @@ def test_the_oracle_searches_the_true_lanes_of_each_step():
     recording = evaluation.record_mode(0).frames
     for t in (0, 17, 23):  # past the frames a learned agent keeps of what it observed
         np.testing.assert_array_equal(turns[t].frames, recording[3 + t : 3 + t + 4])
+
+
+def test_the_extrapolator_moves_each_lane_on_at_its_recent_speed():
+    """A car of lane 3 moving 2 columns a step and one of lane 7 moving 3 back: the extrapolated frames are the
+    true ones; a technique searching them (`extrapolate`) sees the lanes now, then those."""
+    from dynplan.worlds.freeway.evaluation import searched_frames
+    from dynplan.worlds.freeway.game import extrapolated
+
+    def frame(t: int) -> np.ndarray:
+        lanes = np.full((154, 152), ROAD_VALUES[0], np.uint8)
+        lanes[3 * 16 + 1 : 3 * 16 + 9, (40 + 2 * t + np.arange(8)) % 152] = 136
+        lanes[7 * 16 + 1 : 7 * 16 + 9, (100 - 3 * t + np.arange(8)) % 152] = 74
+        return lanes
+
+    truth = np.stack([frame(t) for t in range(9)])
+    np.testing.assert_array_equal(extrapolated(truth[:5], 4), truth[5:])
+    seen = searched_frames(list(truth[:5]), ChickenSearch(horizon=4), "extrapolate")
+    np.testing.assert_array_equal(seen, truth[4:])
+    np.testing.assert_array_equal(
+        searched_frames([truth[0]], ChickenSearch(horizon=2), "extrapolate"), truth[[0, 0, 0]]
+    )

@@ -11,14 +11,14 @@ pytest.importorskip("ale_py")
 pygame = pytest.importorskip("pygame")
 
 from dynplan.cli import InputError  # noqa: E402
-from dynplan.env.freeway import FreewayEpisode, FreewayGame  # noqa: E402
-from dynplan.evaluation.freeway import play_turns, world_model_for  # noqa: E402
-from dynplan.evaluation.freeway_play import FreewayPlay  # noqa: E402
 from dynplan.logs.reader import read_episode_log  # noqa: E402
-from dynplan.planning.chicken import ChickenSearch  # noqa: E402
+from dynplan.worlds.freeway.evaluation import play_turns, world_model_for  # noqa: E402
+from dynplan.worlds.freeway.game import FreewayEpisode, FreewayGame  # noqa: E402
+from dynplan.worlds.freeway.play import ACTION_KEYS, FreewayPlay  # noqa: E402
+from dynplan.worlds.freeway.search import ChickenSearch  # noqa: E402
 from flows.play import main  # noqa: E402
-from flows.play_freeway import ACTION_KEYS, play  # noqa: E402
 from flows.view import main as view  # noqa: E402
+from flows.worlds import PlayOptions, play_window  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("headless_window")
 EPISODE = FreewayEpisode(mode=0, noop_start=5)
@@ -42,7 +42,7 @@ def test_help_lists_the_keys_and_a_bad_option_names_its_range(capsys):
 
 def test_keys_step_the_real_game():
     keys = ["w"] * 30 + ["s"] * 5 + ["x"] * 10 + ["up"] * 20
-    state = play(FreewayPlay(EPISODE, "zero"), scale=1, fps=1000, script=keys)
+    state = play_window(FreewayPlay(EPISODE, "zero"), PlayOptions(scale=1, fps=1000, script=keys))
     game = FreewayGame(EPISODE)
     ys = [game.step(ACTION_KEYS[key]).chicken.y for key in keys]
     assert [turn.step.chicken.y for turn in state.turns] == ys  # one emulator step a key, the same chicken

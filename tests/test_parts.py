@@ -6,10 +6,10 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from dynplan.analysis.parts import VIEWS, play_views, swap_parts
 from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.protocol import plan_episode
+from lab.parts import VIEWS, play_views, swap_parts
 
 pixels = st.sampled_from([FREE, GOAL_VALUE, 45, 144])
 

@@ -12,11 +12,12 @@ import torch
 
 from dynplan.config import ConfigError
 from dynplan.evaluation.store import Run
-from dynplan.pipeline.presets import PIPELINE_PRESETS, EvalPlan, FreewayEvalPlan, PipelinePreset, pipeline_preset
+from dynplan.pipeline.presets import ROAD_PRESETS, EvalPlan, PipelinePreset, pipeline_preset
+from dynplan.worlds.freeway.presets import FreewayEvalPlan
 
 
 def test_presets_are_valid_data():
-    quick, full = PIPELINE_PRESETS["road"]["quick"], PIPELINE_PRESETS["road"]["full"]
+    quick, full = ROAD_PRESETS["quick"], ROAD_PRESETS["full"]
     assert quick.pixelcnn_config("default").codebook_size == quick.vqvae_config("default").codebook_size
     assert full.models == ("default", "paper") and full.pretrained and full.evaluation.episodes == 100
     assert set(full.evaluation.techniques) >= {"oracle", "mid", "samples5", "samples10"}
@@ -58,7 +59,7 @@ def test_freeway_presets_are_valid_data():
 
 
 def test_freeway_runs_are_named_by_the_weights_the_learned_agent_reads(tmp_path):
-    from dynplan.pipeline.freeway_report import REFERENCE_RUN, run_of, weights_run
+    from dynplan.worlds.freeway.report import REFERENCE_RUN, run_of, weights_run
 
     for stage in ("vqvae", "pixelcnn"):
         (tmp_path / f"{stage}.pt").write_bytes(stage.encode())
@@ -175,8 +176,8 @@ def test_pretrained_run_uses_the_committed_tokenizer_and_trains_its_prior(tmp_pa
     from dynplan.models import pretrained_path
     from flows import collect_train_eval as pipeline
 
-    smoke = PIPELINE_PRESETS["road"]["smoke"]
-    monkeypatch.setitem(PIPELINE_PRESETS["road"], "smoke", smoke.model_copy(update={"pretrained": True}))
+    smoke = ROAD_PRESETS["smoke"]
+    monkeypatch.setitem(ROAD_PRESETS, "smoke", smoke.model_copy(update={"pretrained": True}))
     monkeypatch.setattr(pipeline, "pretrained_path", lambda stage, model: (
         pretrained_path(stage, model) if stage == "vqvae" else tmp_path / "no-such-prior.pt"))  # fmt: skip
     pipeline.collect_train_eval(preset="smoke", out=str(tmp_path))
@@ -200,12 +201,15 @@ def test_freeway_run_writes_its_report_and_reruns_from_cache(tmp_path, prefect_a
                     "| vqvae [freeway] |", "### pixelcnn `freeway`", "8 episodes, 8 recorded now"):  # fmt: skip
         assert section in text, section
     assert re.search(r"\| up \| 2\d ± 0, \d+ \|  \|", text)  # always-UP scores 21–23, depending on the NOOP start
-    runs = [p.name for p in (work / "results").iterdir() if p.is_dir()]
+    runs = [p.name for p in (work / "results" / "runs").iterdir() if p.is_dir()]
     assert runs == ["reference"]  # always-UP does not read the weights
-    played = work / "results" / "reference" / "mode0-seed0"
-    before = _files(work / "checkpoints") | _files(work / "models") | _files(played)
+    played = work / "results" / "runs" / "reference" / "episodes.jsonl"
+    row = json.loads(played.read_text())
+    assert row["actions"] == "1" * row["steps"] and row["steps"] == 2048 - row["noop_start"]
+    before = _files(work / "checkpoints") | _files(work / "models") | {played: played.stat().st_mtime_ns}
 
     collect_train_eval(preset="smoke", out=str(tmp_path), world="freeway")
-    assert _files(work / "checkpoints") | _files(work / "models") | _files(played) == before
+    after = _files(work / "checkpoints") | _files(work / "models") | {played: played.stat().st_mtime_ns}
+    assert after == before  # nothing trained or played again
     rerun = (work / "report" / "report.md").read_text()
     assert "cached, 1 epochs" in rerun and "0 recorded now" in rerun and "8 episodes: 0 added" in rerun

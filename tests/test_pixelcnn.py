@@ -209,7 +209,7 @@ def test_sampling_by_inverse_transform_follows_the_softmax():
 
 
 def test_prior_curves_plot_and_name_a_bad_run_argument(tmp_path, capsys):
-    from dynplan.analysis import prior_curves
+    from lab import prior_curves
 
     header = "epoch,windows_seen,elapsed_s,val_accuracy,val_next_fn_rate\n"
     (tmp_path / "a.csv").write_text(header + "1,3200,60,0.05,0.9\n2,6400,120,0.1,0.5\n")

@@ -12,9 +12,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
 BLOCKS = re.findall(r"```(\w+)\n(.*?)```", README, flags=re.S)
-#: Shell blocks these tests leave to others: set-up (CI runs it) and long-running servers (the deployment test, the
-#: viewer's browser test in tests/test_view.py).
-NOT_HERE = ("pip install", "prefect server", "flows.serve", "flows.view")
+#: Shell blocks these tests leave to others: set-up (CI runs it), long-running servers (the deployment test, the
+#: viewer's browser test in tests/test_view.py) and the check of the committed results, which reads the checkout's
+#: store (tests/test_committed_results.py runs it).
+NOT_HERE = ("pip install", "prefect server", "flows.serve", "flows.view", "--check")
 
 
 def test_the_readme_is_small_and_has_its_snippets():

@@ -276,6 +276,46 @@ def test_a_replay_log_opens_in_foxglove_with_every_topic_and_no_problem(studio, 
     assert Image.open(shot).size == CaptureSettings().size
 
 
+@pytest.fixture(scope="module")
+def freeway_replay(tmp_path_factory) -> Path:
+    """A Freeway replay log: 60 frames of mode 0 and 40 steps of the zero planner from NOOP start 2."""
+    pytest.importorskip("ale_py")
+    from itertools import islice
+
+    from dynplan.logs.writer import write_episode_log
+    from dynplan.worlds.freeway.evaluation import play_turns
+    from dynplan.worlds.freeway.game import FreewayEpisode, record_mode
+    from dynplan.worlds.freeway.replay import track
+    from dynplan.worlds.freeway.search import ChickenSearch
+
+    turns = list(islice(play_turns("zero", FreewayEpisode(mode=0, noop_start=2), ChickenSearch(horizon=2)), 40))
+    imagined = {2 + i: turn.frames[1:] for i, turn in enumerate(turns)}
+    out = tmp_path_factory.mktemp("freeway") / "replay.mcap"
+    return write_episode_log(out, record_mode(0, 60), agent=track(turns, 2), imagined=imagined)
+
+
+def test_each_world_has_a_layout_of_the_topics_its_replays_have(freeway_replay):
+    from dynplan.world import world
+
+    parts = world("freeway").load()
+    topics = set(inspect_log(freeway_replay).topics)
+    for layout in (parts.layout, parts.studio_layout):
+        assert layout_topics(layout) == topics - {"/world/goal"}, layout  # every panel has its topic
+    assert layout_topics(parts.layout) == layout_topics(parts.studio_layout)  # one layout in two dialects
+
+
+@pytest.mark.slow
+def test_a_freeway_replay_opens_with_its_own_layout_every_panel_drawn(studio, freeway_replay, tmp_path):
+    from dynplan.world import world
+
+    shot = tmp_path / "freeway.png"
+    report = flows.view.main([str(freeway_replay), "--screenshot", str(shot), "--at", "2"])
+    layout = world("freeway").load().studio_layout
+    assert {panel.id for panel in report.panels} == set(json.loads(layout.read_text())["configById"])
+    assert report.problems == () and report.complete and report.outside_requests == ()
+    assert all(panel.drawn for panel in report.panels), [p.id for p in report.panels if not p.drawn]
+
+
 @pytest.mark.slow
 def test_a_refused_schema_and_a_blank_panel_are_seen(studio, tmp_path, monkeypatch, episode_log):
     """The checks above can fail: a replay written with the goal schema Foxglove refuses shows a problem naming the

@@ -446,7 +446,7 @@ def test_train_command_line_names_a_missing_code_array(store, capsys):
 def test_code_statistics_tell_a_patch_local_code_from_a_context_dependent_one(tmp_path, capsys):
     import zarr
 
-    from dynplan.analysis.codes import code_statistics, main, patch_keys
+    from lab.codes import code_statistics, main, patch_keys
 
     frames = np.asarray(generate_world(RoadConfig(), 2).frames[:40])[None]  # (1, 40, 48, 48)
     keys, empty = patch_keys(frames[0], (12, 12))

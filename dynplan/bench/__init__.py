@@ -2,7 +2,7 @@
 
 Each benchmark is a function returning `{case: {figure: value}}`; speeds are medians over repeats and, where a
 baseline exists, reported as a ratio against it measured in the same process. Targets live here, never in
-timed unit tests.
+timed unit tests. A world adds its own (`WorldParts.benches`: name → "module:function").
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from dynplan.bench.data import bench_data
 from dynplan.bench.decision import bench_decision
 from dynplan.bench.decoding import bench_decoding
 from dynplan.bench.evaluation import bench_evaluation
-from dynplan.bench.freeway import bench_freeway
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.pipeline import bench_pipeline
@@ -21,6 +20,7 @@ from dynplan.bench.prior import bench_prior
 from dynplan.bench.sharing import bench_sharing
 from dynplan.bench.vqvae import bench_vqvae
 from dynplan.bench.world import bench_world
+from dynplan.world import resolve, world, world_names
 
 Results = dict[str, dict[str, float]]
 
@@ -37,7 +37,16 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "evaluation": bench_evaluation,
     "sharing": bench_sharing,
     "pipeline": bench_pipeline,
-    "freeway": bench_freeway,
 }
 
-__all__ = ["BENCHMARKS", "Results"]
+
+def benchmarks() -> dict[str, Callable[..., Results]]:
+    """Every benchmark by name: `BENCHMARKS`, then each world's own (their functions imported now)."""
+    found = dict(BENCHMARKS)
+    for name in world_names():
+        for bench, reference in world(name).load().benches.items():
+            found[bench] = resolve(reference)
+    return found
+
+
+__all__ = ["BENCHMARKS", "Results", "benchmarks"]

@@ -6,15 +6,16 @@ import inspect
 import json
 import sys
 
-from dynplan.bench import BENCHMARKS
+from dynplan.bench import benchmarks
 from dynplan.cli import CommandParser, run_command
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = CommandParser(prog="python -m dynplan.bench", description=__doc__)
-    parser.add_argument("name", choices=sorted(BENCHMARKS), help="which benchmark to run")
+    every = benchmarks()
+    parser.add_argument("name", choices=sorted(every), help="which benchmark to run")
     parser.add_argument("--json", action="store_true", help="print {case: {figure: value}} as JSON")
-    with_device = sorted(n for n, b in BENCHMARKS.items() if "device" in inspect.signature(b).parameters)
+    with_device = sorted(n for n, b in every.items() if "device" in inspect.signature(b).parameters)
     parser.add_argument("--device", help=f"where the world model generates: cpu or cuda[:N] ({', '.join(with_device)})")
     args = parser.parse_args(argv)
     options = {}
@@ -28,7 +29,7 @@ def main(argv: list[str] | None = None) -> int:
             options["device"] = check_device(args.device)
         except ValueError as error:
             parser.error(f"--device: {error}")
-    results = BENCHMARKS[args.name](**options)
+    results = every[args.name](**options)
     if args.json:
         print(json.dumps(results, indent=2))
         return 0

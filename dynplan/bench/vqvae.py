@@ -13,9 +13,9 @@ import torch
 from dynplan.data.patches import tiles
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
-from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models.registry import WORLD_MODELS
 from dynplan.models.vqvae import VQVAE
+from dynplan.world import DEFAULT_WORLD
 
 
 def _train_rate(model: VQVAE, optimiser: torch.optim.Optimizer, batch: torch.Tensor, steps: int) -> float:

@@ -33,9 +33,9 @@ from dynplan.data.store import (
     store_world,
 )
 from dynplan.data.verify import verify_store
-from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.files import exclusive
 from dynplan.version import __version__
+from dynplan.world import DEFAULT_WORLD, world
 
 
 @dataclass

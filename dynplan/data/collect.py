@@ -16,12 +16,12 @@ from pathlib import Path
 from pydantic import Field
 
 from dynplan.config import Config
-from dynplan.env.worlds import DEFAULT_WORLD, Recording, world, world_of
 from dynplan.files import stale_temporaries as stale_files
 from dynplan.files import write_bytes_atomic
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.logs.recording import fresh_recording, recording_problem
 from dynplan.logs.writer import write_episode_log
+from dynplan.world import DEFAULT_WORLD, Recording, world, world_of
 
 
 class CollectPlan(Config):

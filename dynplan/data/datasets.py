@@ -4,7 +4,7 @@ context + 1 target, for the PixelCNN; a longer context repeats frame 0 before th
 
 The split is a pure function of each episode's seed, so it never changes as the store grows and an episode is
 never in both splits: a world with few episodes names its validation seeds, and those no model trains on, in its
-entry (`dynplan.env.worlds`); the others' are drawn by a hash of the seed. Episodes are read whole (one Zarr
+spec (`dynplan.world`); the others' are drawn by a hash of the seed. Episodes are read whole (one Zarr
 chunk) and kept in memory once read.
 """
 
@@ -21,7 +21,7 @@ from torch.utils.data import Dataset
 from dynplan.data.chunks import read
 from dynplan.data.history import context_indices, first_target
 from dynplan.data.store import store_world
-from dynplan.env.worlds import WorldEntry, world
+from dynplan.world import World, world
 
 Split = Literal["train", "validation", "all"]
 #: Frames of context a window gives before its target (docs/protocol.md §2: the PixelCNN conditions on the last 4).
@@ -36,7 +36,7 @@ def is_validation(seeds: np.ndarray, val_fraction: float) -> np.ndarray:
     return hashed.astype(np.float64) / 2.0**53 < val_fraction
 
 
-def split_of(entry: WorldEntry, seeds: np.ndarray, val_fraction: float) -> tuple[np.ndarray, np.ndarray]:
+def split_of(entry: World, seeds: np.ndarray, val_fraction: float) -> tuple[np.ndarray, np.ndarray]:
     """Which episodes of `entry`'s world, by seed, are validation episodes and which no model trains on."""
     seeds = np.asarray(seeds)
     if entry.validation_seeds is None:

@@ -29,7 +29,7 @@ from dynplan.data.store import (
     store_arrays,
     store_world,
 )
-from dynplan.env.worlds import world
+from dynplan.world import world
 
 #: How to start again when the store itself cannot be repaired.
 REBUILD = "rebuild the store from its logs: python -m flows.build_datasets LOG_DIR --out NEW.zarr"

@@ -37,8 +37,8 @@ from zarr.core.buffer import default_buffer_prototype
 from zarr.storage import MemoryStore
 
 from dynplan.data.chunks import COMPRESSORS, read
-from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.logs.reader import LogError, read_episode_log
+from dynplan.world import DEFAULT_WORLD, world
 
 STORE_FORMAT = "dynplan.frames"
 #: 2: checksummed chunks; 1 (without checksums) is read but no longer extended.

@@ -16,7 +16,6 @@ from pydantic import Field, field_validator, model_validator
 from dynplan.config import Config, ConfigError
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
-from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, Technique, learned_technique, technique
 from dynplan.models.caution import Caution
 from dynplan.models.checkpoint import CheckpointError
@@ -25,6 +24,7 @@ from dynplan.models.registry import caution_for, models_of, world_model_spec
 from dynplan.models.world_model import world_model_parts, world_model_paths
 from dynplan.planning.forward import ForwardModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
+from dynplan.world import DEFAULT_WORLD
 
 #: The technique name of a learned world model with the spec's own `samples` and `futures`.
 LEARNED = "model"

@@ -10,10 +10,10 @@ from pydantic import Field, model_validator
 
 from dynplan.config import Config
 from dynplan.env.config import RoadConfig
-from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.evaluation.techniques import technique
 from dynplan.models.registry import models_of, world_model_spec
 from dynplan.planning.mcts import MCTSConfig
+from dynplan.world import DEFAULT_WORLD
 
 
 def road_models() -> list[str]:

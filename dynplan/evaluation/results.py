@@ -20,18 +20,21 @@ import re
 from pathlib import Path
 
 from dynplan.cli import CommandParser, InputError, run_command
-from dynplan.evaluation import freeway
 from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs, shown
 from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, table_files
 from dynplan.files import write_bytes_atomic
 from dynplan.paths import PathArgument, PathKind, check_input, check_output
+from dynplan.world import DEFAULT_WORLD, world, world_names
 
 ROOT = Path(__file__).resolve().parents[2]
 COMMAND = "python -m dynplan.evaluation.results"
-PREDICTION = "python -m dynplan.analysis.prediction"
+PREDICTION = "python -m lab.prediction"
+#: How a prediction file's commands start, left out of its title: `PREDICTION`, or the module's name in the
+#: committed files (`dynplan.analysis.prediction`).
+_PREDICTION_START = re.compile(r"^python -m (?:lab|dynplan\.analysis)\.prediction ")
 README_MARKER = "<!-- table1: generated from datasets/results/table1.json -->"
 HORIZONS = (1, 3, 5, 10)
-#: The causes of a death, as `dynplan.analysis.deaths` counts them.
+#: The causes of a death, as `lab.deaths` counts them.
 DEATH_CAUSES = ("off_grid", "foreseen", "spawned", "displaced", "lost")
 #: A cell's goals / timeouts / deaths, at its start (not a prediction's "15.1/0.2" nor a death's "1: 0/1/0/0/0").
 _GTD_CELL = re.compile(r"(\d+)/(\d+)/(\d+)(?![\d/.])")
@@ -61,7 +64,7 @@ def prediction_section(results: Path, docs: Path) -> list[str]:
              "N decoded samples merged; `N futures`: N code futures sampled from the prior, merged; occupancy and "
              "margin: the caution (docs/protocol.md §2). A *context bound, N frames* places each obstacle on the "
              "road, and the goal, where their rounded positions over the last N frames most probably put them "
-             "(`dynplan.analysis.context_bound`): the best one predicted future from N frames can do. Each file "
+             "(`lab.context_bound`): the best one predicted future from N frames can do. Each file "
              "splits the false negatives by cause: `fn_unforeseeable` (not on the road at the decision), "
              "`fn_displaced` (a predicted obstacle within 2 pixels along its lane), `fn_lost` (the rest). A title "
              f"gives the options of `{PREDICTION}` that wrote the file.", ""]  # fmt: skip
@@ -75,12 +78,12 @@ def prediction_section(results: Path, docs: Path) -> list[str]:
 
 
 def _prediction_title(path: Path, curves: dict[str, dict]) -> str:
-    """A file's name, first seed, floor (where measured) and commands (without `PREDICTION` where they start so)."""
+    """A file's name, first seed, floor (where measured) and commands (each without `_PREDICTION_START`)."""
     seeds = sorted({c["first_seed"] for c in curves.values() if "first_seed" in c})
     floors = [c["floor_fn_rate"] for c in curves.values() if "floor_fn_rate" in c]
     facts = [f"seeds {', '.join(f'{s:,}' for s in seeds)}…"] if seeds else []
     facts += [f"floor {'/'.join(_pct(floors[0][k - 1]) for k in HORIZONS)}"] if floors else []
-    commands = sorted({c["command"].removeprefix(PREDICTION + " ") for c in curves.values()})
+    commands = sorted({_PREDICTION_START.sub("", c["command"], count=1) for c in curves.values()})
     return f"`{os.path.relpath(path, ROOT)}` ({'; '.join(facts)}): " + "; ".join(f"`{c}`" for c in commands)
 
 
@@ -113,7 +116,7 @@ def deaths_section(results: Path) -> list[str]:
         return []
     ks = sorted({s["k"] for path in files for s in json.loads(path.read_text())["summary"]})
     lines = ["## Why the learned agents die", "",
-             "Each death replayed and classified (`python -m dynplan.analysis.deaths --technique T --model M "
+             "Each death replayed and classified (`python -m lab.deaths --technique T --model M "
              "--agent-speed S [--run RUN] --out FILE`, written to `datasets/results/deaths_*.json`): *off_grid*; "
              "*foreseen* (the prediction showed the obstacle); *spawned* (it entered the road after the decision, so "
              "no model could foresee it); *displaced* (predicted a few pixels off along its lane); *lost* (not "
@@ -244,8 +247,17 @@ def results_page(results: Path, docs: Path, rows: list[dict] | None = None) -> s
     lines += prediction_section(results, docs)
     lines += figure1_section(results, docs)
     lines += deaths_section(results)
-    lines += freeway.results_section(results / "freeway")
+    lines += worlds_sections(results)
     return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def worlds_sections(results: Path) -> list[str]:
+    """Every other world's section of the page, from its own folder of the store (`WorldParts.results_section`)."""
+    lines = []
+    for name in world_names():
+        section = world(name).load().results_section if name != DEFAULT_WORLD else None
+        lines += section(results / name) if section is not None else []
+    return lines
 
 
 def readme_with_table(readme: str, rows: list[dict]) -> str:

@@ -16,6 +16,12 @@ manifest or row of the wrong types, out of range or missing a field is a StoreEr
 never a row that silently stops counting. A case played twice with the same provenance is refused naming both
 lines when the two rows differ (the table would otherwise count whichever came last); a line repeated exactly is
 read once.
+
+Every world's runs have this layout and these guarantees; what a run's manifest and rows hold is its world's
+(`RunKind`: the schemas, the keys of a case and of its provenance, and what the manifest asks of each row). A
+manifest names its world (`world`: an id such as `freeway-v1`); one without that field is the road's, whose
+`RunKind` is `ROAD_RUNS`. Each world keeps its runs under a root of its own (the road's `datasets/results`,
+another world's `datasets/results/<world>`).
 """
 
 from __future__ import annotations
@@ -36,6 +42,8 @@ from dynplan.evaluation.store_schema import FORMAT, ROLES, ManifestSchema, RowSc
 from dynplan.files import exclusive, is_held, write_bytes_atomic
 from dynplan.models.caution import Caution
 from dynplan.version import __version__
+from dynplan.world import DEFAULT_WORLD, world, world_names
+from dynplan.world_parts import RunKind
 
 #: Table 1's run.
 EVALUATION_RUN = "evaluation"
@@ -45,7 +53,6 @@ CASE_KEYS = ("technique", "model", "agent_speed", "rollout_steps", "seed")
 PROVENANCE_KEYS = ("playouts", "log_sha256", "world_model_sha256", *Caution.model_fields)
 #: What a row records of how its episode went; every other key of a row is its case or its provenance.
 RESULT_KEYS = ("outcome", "steps", "decision_ms", "wall_s", "code_version")
-_NAMED_KEYS = frozenset((*CASE_KEYS, *RESULT_KEYS, *PROVENANCE_KEYS))
 _RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
 
 
@@ -78,20 +85,19 @@ def code_version() -> str:
 
 
 def case_key(row: Mapping) -> tuple:
+    """A road row's case (`CASE_KEYS`)."""
     return tuple(row.get(k) for k in CASE_KEYS)
 
 
 def provenance_of(row: Mapping) -> dict:
-    """The provenance a row records: `PROVENANCE_KEYS` (None where absent: a caution setting that is off) and any
-    other key that is neither its case nor its result — a setting recorded by code that had it, which a row
-    played without it does not share."""
-    extra = {k: v for k, v in row.items() if k not in _NAMED_KEYS}
-    return {**{k: row.get(k) for k in PROVENANCE_KEYS}, **extra}
+    """The provenance a road row records: `PROVENANCE_KEYS` (None where absent: a caution setting that is off) and
+    any other key that is neither its case nor its result (`RunKind.provenance_of`)."""
+    return ROAD_RUNS.provenance_of(row)
 
 
-def same_provenance(row: Mapping, expected: Mapping) -> bool:
-    """Whether `row` was played with the provenance `expected` (`expected_provenance`), key for key."""
-    recorded = provenance_of(row)
+def same_provenance(row: Mapping, expected: Mapping, kind: RunKind | None = None) -> bool:
+    """Whether `row` was played with the provenance `expected` (what its manifest asks), key for key."""
+    recorded = (kind or ROAD_RUNS).provenance_of(row)
     return all(recorded.get(k) == expected.get(k) for k in recorded.keys() | expected.keys())
 
 
@@ -103,11 +109,13 @@ def check_run_name(name: str) -> str:
 
 
 class Run:
-    """One named run of a results store rooted at `root` (e.g. `datasets/results`)."""
+    """One named run of a results store rooted at `root` (e.g. `datasets/results`); `kind`: what a new run holds
+    (default the road's; an existing run's is its manifest's world's)."""
 
-    def __init__(self, root: str | os.PathLike, name: str = EVALUATION_RUN) -> None:
+    def __init__(self, root: str | os.PathLike, name: str = EVALUATION_RUN, kind: RunKind | None = None) -> None:
         self.root = Path(root)
         self.name = check_run_name(name)
+        self._kind = kind
         self.dir = self.root / "runs" / name
         self.manifest_path = self.dir / "manifest.json"
         self.episodes_path = self.dir / "episodes.jsonl"
@@ -118,6 +126,13 @@ class Run:
 
     def exists(self) -> bool:
         return self.manifest_path.is_file()
+
+    @property
+    def kind(self) -> RunKind:
+        """What the run holds: its manifest's world's kind, or (no manifest yet) the one it was made with."""
+        if not self.exists():
+            return self._kind or ROAD_RUNS
+        return kind_of(_world_field(self.manifest_path), self.manifest_path)
 
     # -- manifest ---------------------------------------------------------------------------------------------
     def manifest(self) -> dict:
@@ -141,7 +156,11 @@ class Run:
         found = manifest.get("format") if isinstance(manifest, dict) else None
         if found != FORMAT:
             raise StoreError(f"{path}: not a {FORMAT} manifest (format {found!r})")
-        problem = first_problem(ManifestSchema, manifest)
+        kind = kind_of(manifest.get("world"), self.manifest_path)
+        if self._kind is not None and kind.world != self._kind.world:
+            raise StoreError(f"{path}: run {self.name!r} holds {kind.world} episodes, not {self._kind.world}'s; name "
+                             "another run with --run")  # fmt: skip
+        problem = first_problem(kind.manifest_schema, manifest)
         if problem is not None:
             raise StoreError(f"{path}:{line_of(text, problem[0])}: {problem[1]}")
         if manifest["name"] != self.name:
@@ -153,7 +172,7 @@ class Run:
         """Write the manifest, atomically; one its schema refuses is a StoreError and is not written."""
         if manifest.get("role") not in ROLES:
             raise StoreError(f"run {self.name!r}: role {manifest.get('role')!r} is invalid; one of {ROLES}")
-        problem = first_problem(ManifestSchema, dict(manifest))
+        problem = first_problem(kind_of(manifest.get("world")).manifest_schema, dict(manifest))
         if problem is not None:
             raise StoreError(f"{shown(self.manifest_path)}: the manifest to write is invalid: {problem[1]}")
         write_bytes_atomic(self.manifest_path, (json.dumps(manifest, indent=1) + "\n").encode())
@@ -188,6 +207,30 @@ class Run:
         self.write_manifest(manifest)
         return manifest
 
+    def start(self, role: str, settings: Mapping, world_models: Mapping[str, Mapping], command: str) -> dict:
+        """Create the run of a world whose runs name it (`RunKind.world`), or extend its manifest with this
+        invocation and the weights it plays with (a world model's new weights make its earlier rows stale). A run's
+        role and settings (what every row depends on: an emulator's options, say) do not change: another value is
+        refused. Returns the manifest written."""
+        if role not in ROLES:
+            raise StoreError(f"run {self.name!r}: role {role!r} is invalid; one of {ROLES}")
+        kind = self._kind or self.kind
+        with self._locked():
+            manifest = self.manifest() if self.exists() else self._new_manifest(role, kind, settings)
+            for field, value in (("role", role), ("settings", dict(settings))):
+                if manifest[field] != value:
+                    where = f"{shown(self.manifest_path)}: run {self.name!r}"
+                    raise StoreError(f"{where} has {field} {manifest[field]!r}, not {value!r}: name another run")
+            manifest["world_models"] = {**manifest["world_models"], **{m: dict(v) for m, v in world_models.items()}}
+            started = datetime.now(timezone.utc).isoformat(timespec="seconds")
+            manifest["invocations"].append({"command": command, "code_version": code_version(), "started": started})
+            self.write_manifest(manifest)
+        return manifest
+
+    def _new_manifest(self, role: str, kind: RunKind, settings: Mapping) -> dict:
+        fields = {"role": role, "world": kind.world, "settings": dict(settings), "world_models": {}, "invocations": []}
+        return {"format": FORMAT, "name": self.name, **fields}
+
     # -- rows ---------------------------------------------------------------------------------------------------
     def _locked(self) -> AbstractContextManager[None]:
         """Exclusive against other processes and this process's threads."""
@@ -206,19 +249,21 @@ class Run:
             raise StoreError(f"{shown(self.episodes_path)}: cannot be read ({error.strerror})") from None
         if data and not data.endswith(b"\n") and is_held(self._lock_path):
             data = data[: data.rfind(b"\n") + 1]  # another writer's row, still being written
-        return [row for _, row in _merge({}, _parse(data, self.episodes_path), self.episodes_path)]
+        kind = self.kind
+        return [row for _, row in _merge({}, _parse(data, self.episodes_path, kind), self.episodes_path, kind)]
 
     def append(self, row: Mapping) -> bool:
         """Append one episode's row, unless the run already holds that case with the same provenance (then return
         False): concurrent writers never duplicate a row. A torn last line is cut off first; a row its schema
         refuses is a StoreError and is not written."""
-        problem = first_problem(RowSchema, dict(row))
+        kind = self.kind
+        problem = first_problem(kind.row_schema, dict(row))
         if problem is not None:
             raise StoreError(f"{shown(self.episodes_path)}: the row to append is invalid: {problem[1]}")
         line = (json.dumps(dict(row), separators=(",", ":")) + "\n").encode()
-        identity = _identity(row)
+        identity = kind.identity(row)
         with self._locked(), _INDEX_LOCK, open(self.episodes_path, "a+b") as f:
-            index = _index(f, self.episodes_path, truncate=True)
+            index = _index(f, self.episodes_path, kind, truncate=True)
             if identity in index:
                 return False
             f.write(line)  # "a" mode: at the end, whatever the position
@@ -231,9 +276,10 @@ class Run:
 
     def find(self, case: Mapping, provenance: Mapping) -> dict | None:
         """The row of `case` played with `provenance`, if the run holds one."""
+        kind = self.kind
         try:
             with _INDEX_LOCK, open(self.episodes_path, "rb") as f:
-                found = _index(f, self.episodes_path).get(_identity({**case, **provenance}))
+                found = _index(f, self.episodes_path, kind).get(kind.identity({**case, **provenance}))
         except FileNotFoundError:
             return None
         return None if found is None else found[1]
@@ -241,18 +287,16 @@ class Run:
     def expected(self, row: Mapping, manifest: Mapping | None = None) -> dict:
         """The provenance the manifest asks of `row`'s case."""
         manifest = self.manifest() if manifest is None else manifest
-        return expected_provenance(manifest, row)
+        return self.kind.expected(manifest, row)
 
     def current(self, manifest: Mapping | None = None) -> list[dict]:
         """The rows that count: for each case, the last row whose provenance equals the manifest's."""
         manifest = self.manifest() if manifest is None else manifest
-        seeds = set(manifest["episode_seeds"])
+        kind = self.kind
         out: dict[tuple, dict] = {}
         for row in self.rows():
-            if row.get("seed") not in seeds:
-                continue
-            if same_provenance(row, expected_provenance(manifest, row)):
-                out[case_key(row)] = row
+            if kind.counts(manifest, row) and same_provenance(row, kind.expected(manifest, row), kind):
+                out[kind.case_key(row)] = row
         return list(out.values())
 
 
@@ -269,7 +313,40 @@ def expected_provenance(manifest: Mapping, case: Mapping) -> dict:
     return out
 
 
-def _parse(data: bytes, path: Path, first_line: int = 1) -> list[tuple[int, dict]]:
+def _in_the_manifests_seeds(manifest: Mapping, row: Mapping) -> bool:
+    return row.get("seed") in manifest["episode_seeds"]
+
+
+#: The road's runs: Table 1's cases (technique, world model, speed, k, seed) with their playouts, logs and weights.
+ROAD_RUNS = RunKind(f"{DEFAULT_WORLD}-v1", ManifestSchema, RowSchema, CASE_KEYS, PROVENANCE_KEYS, RESULT_KEYS,
+                    expected_provenance, _in_the_manifests_seeds)  # fmt: skip
+
+
+def _world_field(path: Path) -> str | None:
+    """The `world` a manifest names (None: none, or not a readable manifest, which `Run.manifest` names)."""
+    try:
+        manifest = json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    return manifest.get("world") if isinstance(manifest, dict) and isinstance(manifest.get("world"), str) else None
+
+
+def kind_of(world_id: str | None, path: str | os.PathLike | None = None) -> RunKind:
+    """The kind of a run whose manifest names world `world_id` (None: the road's); a StoreError naming the
+    manifest when no registered world of that version keeps runs."""
+    if world_id is None or world_id == ROAD_RUNS.world:
+        return ROAD_RUNS
+    name, _, version = world_id.rpartition("-v")
+    where = f"{shown(path)}: " if path is not None else ""
+    if name not in world_names() or str(world(name).version) != version:
+        raise StoreError(f"{where}field 'world' = {world_id!r} is not a registered world's id (name-vN)")
+    kind = world(name).load().runs
+    if kind is None or kind.world != world_id:
+        raise StoreError(f"{where}the {name} world keeps no runs of {world_id!r}")
+    return kind
+
+
+def _parse(data: bytes, path: Path, kind: RunKind, first_line: int = 1) -> list[tuple[int, dict]]:
     """The rows of `data` (lines of `path` from `first_line` on) with their line numbers, each checked against
     the schema. A last line without its newline was never finished: reported and left out, whatever it holds."""
     lines = data.split(b"\n")
@@ -293,20 +370,21 @@ def _parse(data: bytes, path: Path, first_line: int = 1) -> list[tuple[int, dict
             warnings.warn(f"{shown(path)}: line {number} has no newline (a writer stopped before finishing it); its "
                           f"episode will be played again", TornRowWarning, stacklevel=3)  # fmt: skip
             continue
-        problem = first_problem(RowSchema, row)
+        problem = first_problem(kind.row_schema, row)
         if problem is not None:
             raise StoreError(f"{shown(path)}:{number}: {problem[1]}")
         rows.append((number, row))
     return rows
 
 
-def _merge(seen: dict[str, tuple[int, dict]], rows: list[tuple[int, dict]], path: Path) -> list[tuple[int, dict]]:
+def _merge(seen: dict[str, tuple[int, dict]], rows: list[tuple[int, dict]], path: Path,
+           kind: RunKind) -> list[tuple[int, dict]]:  # fmt: skip
     """Add `rows` (line, row) to `seen` (identity → line, row) and return those added: a line repeated exactly is
     read once; another row of a case and provenance already seen is a StoreError naming both lines (which one
     counts would otherwise depend on their order)."""
     added = []
     for number, row in rows:
-        identity = _identity(row)
+        identity = kind.identity(row)
         first = seen.get(identity)
         if first is None:
             seen[identity] = (number, row)
@@ -316,7 +394,7 @@ def _merge(seen: dict[str, tuple[int, dict]], rows: list[tuple[int, dict]], path
             fields = sorted(k for k in other.keys() | row.keys() if other.get(k) != row.get(k))
             differ = ", ".join(k if isinstance(row.get(k), list) else f"{k} {other.get(k)!r} vs {row.get(k)!r}"
                                for k in fields)  # fmt: skip
-            case = " ".join(f"{k}={v!r}" for k, v in zip(CASE_KEYS, case_key(row), strict=True))
+            case = " ".join(f"{k}={v!r}" for k, v in zip(kind.case_keys, kind.case_key(row), strict=True))
             raise StoreError(f"{shown(path)}:{number}: case {case} has another result with the same provenance "
                              f"at line {first[0]} ({differ}); keep one of the two lines")  # fmt: skip
     return added
@@ -369,11 +447,7 @@ _INDEX: dict[Path, tuple[tuple[int, int], int, int, dict[str, tuple[int, dict]]]
 _INDEX_LOCK = threading.Lock()
 
 
-def _identity(row: Mapping) -> str:
-    return json.dumps([case_key(row), provenance_of(row)], sort_keys=True)
-
-
-def _index(f, path: Path, truncate: bool = False) -> dict[str, tuple[int, dict]]:
+def _index(f, path: Path, kind: RunKind, truncate: bool = False) -> dict[str, tuple[int, dict]]:
     """The rows of the open file `f` by identity (read incrementally); with `truncate` (under the lock), a torn
     last line is cut off."""
     key = path.resolve()
@@ -387,10 +461,10 @@ def _index(f, path: Path, truncate: bool = False) -> dict[str, tuple[int, dict]]
     data = f.read()
     intact = data.rfind(b"\n") + 1
     index = dict(index)
-    _merge(index, _parse(data[:intact], path, first_line=lines + 1), path)
+    _merge(index, _parse(data[:intact], path, kind, first_line=lines + 1), path, kind)
     lines += data[:intact].count(b"\n")
     if truncate and intact < len(data):  # only under the lock is an unfinished line known to be torn
-        _parse(data[intact:], path, first_line=lines + 1)  # reports it
+        _parse(data[intact:], path, kind, first_line=lines + 1)  # reports it
         f.truncate(offset + intact)
     _INDEX[key] = (identity, offset + intact, lines, index)
     return index

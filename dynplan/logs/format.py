@@ -13,7 +13,7 @@ Topics (log time = EPOCH + t · FRAME_PERIOD; each message's own timestamp is eq
 | /planner/search | JSON (jsonschema) | decision | (optional) the root: visits, Q, prior per action; value; goal |
 | /world/annotations | foxglove.ImageAnnotations | step | (optional) agent, true and predicted goal, action |
 
-A world without a goal (`dynplan.env.worlds.WorldEntry.has_goal`) has no /world/goal topic.
+A world without a goal (`dynplan.world.World.has_goal`) has no /world/goal topic.
 
 Every JSON schema is one that Foxglove's schema parser takes: one type per field, objects with their properties
 (a field that may be missing is left out of `required`, never typed as a union with null).

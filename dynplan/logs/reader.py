@@ -24,7 +24,6 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from dynplan.cli import InputError
 from dynplan.config import Config, ConfigError
-from dynplan.env.worlds import DEFAULT_WORLD, Recording, WorldEntry, world
 from dynplan.logs.format import (
     EPOCH_NS,
     FORMAT,
@@ -41,6 +40,7 @@ from dynplan.logs.format import (
     TOPIC_IMAGINED,
     AgentTrack,
 )
+from dynplan.world import DEFAULT_WORLD, Recording, World, world
 
 
 class LogError(InputError):
@@ -99,12 +99,12 @@ class EpisodeLog:
         return len(self.frames)
 
     @property
-    def entry(self) -> WorldEntry:
+    def entry(self) -> World:
         """The world the log records (its `world` metadata; the road where it has none)."""
         return world(self.metadata.get("world", DEFAULT_WORLD))
 
     def world(self, config: Config | None = None) -> Recording:
-        """The recorded episode as its world's recording (a road `World`, a `FreewayWorld`), optionally under
+        """The recorded episode as its world's recording (the world's own `Recording`), optionally under
         another config of the same frames (the road's agent speed)."""
         return self.entry.rebuild(config or self.config, self.seed, self.frames, self.goal, self.agent_start)
 
@@ -222,7 +222,7 @@ def read_episode_log(path: str | os.PathLike) -> EpisodeLog:
     return EpisodeLog(path, meta, config, seed, frames, goal, agent_start, agent, imagined)
 
 
-def _world_topics(scan: _Scan, entry: WorldEntry, config: Config, n_frames: int) -> tuple[np.ndarray, ...]:
+def _world_topics(scan: _Scan, entry: World, config: Config, n_frames: int) -> tuple[np.ndarray, ...]:
     """The world's frames (T, H, W) and goal track (T, 2; None for a world without a goal), once each topic is
     found to hold frames 0 … T−1 in order, at their log times, with frames of the log's size holding only the
     world's pixel values."""

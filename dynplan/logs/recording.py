@@ -1,5 +1,5 @@
 """Whether a log is what its seed records. dynplan's recordings are reproducible from their seed and world config
-(about 20 ms a road log, 1 s a Freeway mode), so a log that says dynplan recorded it (its `dynplan` record carries
+(about 20 ms a road log, a second an Atari game's), so a log that says dynplan recorded it (its `dynplan` record carries
 `dynplan_version`) is checked against a fresh recording: equal bytes settle it at once; otherwise its content
 (record, frames, goal track, agent start) must be the recording's, since another version of dynplan or of its
 compression libraries may encode the same episode in other bytes. A log of one's own world (no `dynplan_version`)
@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from dynplan.env.worlds import DEFAULT_WORLD, Recording
 from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
 from dynplan.logs.writer import episode_metadata, write_episode_log
+from dynplan.world import DEFAULT_WORLD, Recording
 
 
 def fresh_recording(world: Recording, n_frames: int, name: str = "episode.mcap") -> bytes:

@@ -24,7 +24,6 @@ from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import register_schema
 
 from dynplan.env.colors import draw_agent
-from dynplan.env.worlds import DEFAULT_WORLD, Recording, world_of
 from dynplan.files import atomic_path
 from dynplan.logs.format import (
     FORMAT,
@@ -44,6 +43,7 @@ from dynplan.logs.format import (
     AgentTrack,
     log_time,
 )
+from dynplan.world import DEFAULT_WORLD, Recording, world_of
 
 #: Uncompressed bytes per MCAP chunk: about 50 frames, so a truncated log keeps most of its frames readable.
 CHUNK_BYTES = 128 * 1024

@@ -188,9 +188,9 @@ def check_card(path: str | os.PathLike, state: dict, kind: str) -> None:
 def check_configuration(path: str | os.PathLike, kind: str, found: str, expected: str) -> None:
     """A CheckpointError naming the file when weights recording the registered configuration `found` are used
     as configuration `expected`'s (a configuration's own variants, with its name, are its own)."""
-    from dynplan.models.registry import WORLD_MODELS
+    from dynplan.models.registry import is_world_model
 
-    if found == expected or found not in WORLD_MODELS:
+    if found == expected or not is_world_model(found):
         return
     card = pretrained_path(kind, expected).with_suffix(".json")
     twin = pretrained_path(kind, found)
@@ -259,10 +259,12 @@ def pretrained_path(stage: str, model: str) -> Path:
     """Path of the committed weights of `stage` ("vqvae" or "pixelcnn") for the configuration `model` (its
     registry entry names them; `<stage>-<model>.pt` for a configuration without committed weights, which then
     does not exist)."""
-    from dynplan.models.registry import WORLD_MODELS
+    from dynplan.models.registry import is_world_model, world_model_spec
 
-    spec = WORLD_MODELS.get(model)
-    return WEIGHTS / (spec.weights.get(stage, f"{stage}-{model}.pt") if spec else f"{stage}-{model}.pt")
+    if not is_world_model(model):
+        return WEIGHTS / f"{stage}-{model}.pt"
+    spec = world_model_spec(model)
+    return (spec.weights_dir or WEIGHTS) / spec.weights.get(stage, f"{stage}-{model}.pt")
 
 
 @functools.cache

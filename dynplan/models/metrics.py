@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from dynplan.env.config import GOAL_VALUE
-from dynplan.env.worlds import DEFAULT_WORLD, world
+from dynplan.world import DEFAULT_WORLD, world
 
 
 def frame_errors(true: np.ndarray, predicted: np.ndarray, world_name: str = DEFAULT_WORLD) -> dict[str, float]:

@@ -77,23 +77,6 @@ PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
         batch_size=64,
         learning_rate=1e-3,
     ),
-    # Freeway's 40 × 38 grid as 10 lane strips of 4 × 38 codes, generated together: 152 positions in sequence a
-    # grid instead of 1,520. Narrow (16 channels, 4 layers: 13 ms a grid on one core) with a wide conditioning
-    # kernel (3 × 7 codes, twice: ±12 codes, 48 px) that sees a car's last 4 positions at 4 px a step.
-    "freeway": PixelCNNConfig(
-        name="freeway",
-        codebook_size=640,
-        channels=16,
-        layers=4,
-        first_kernel=5,
-        embed_dim=16,
-        condition_channels=64,
-        condition_width=7,
-        strip_rows=4,
-        codebook_init=True,
-        batch_size=64,
-        learning_rate=1e-3,
-    ),
 }
 
 

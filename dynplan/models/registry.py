@@ -2,28 +2,33 @@
 
 A configuration names everything that makes one learned world model: the VQ-VAE tokenizer's config, the
 PixelCNN prior's, the caution of the frames the planner sees, the training budgets its committed weights were
-trained with (fields of `dynplan.training.loop.TrainBudget`) and the names of those weights under
-`dynplan/models/weights/`. Every command, preset and loader looks a configuration up here, so adding one is one
-`register_world_model` call (docs/extending.md). `paper` is the paper's (docs/protocol.md §2); `default` is ours.
+trained with (fields of `dynplan.training.loop.TrainBudget`) and the names of those weights in its weights
+folder. Every command, preset and loader looks a configuration up here, so adding one is one `register_world_model`
+call (docs/extending.md). `paper` is the paper's (docs/protocol.md §2) and `default` ours, the road's; another
+world's configurations are registered by its `World.models` module, imported the first time a configuration of
+that world, or one not registered yet, is looked up.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from importlib import import_module
+from pathlib import Path
 
-from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models.caution import Caution
 from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
 from dynplan.models.vqvae import PRESETS, VQVAEConfig
+from dynplan.world import DEFAULT_WORLD, world, world_names
 
 STAGES = ("vqvae", "pixelcnn")
 
 
 @dataclass(frozen=True)
 class WorldModelSpec:
-    """One world-model configuration. `weights`: stage → file name under `dynplan/models/weights/` (absent: no
-    committed weights; train them or pass a folder); `budgets`: stage → TrainBudget fields of its training."""
+    """One world-model configuration. `weights`: stage → file name in `weights_dir` (absent: no committed weights;
+    train them or pass a folder; `weights_dir` None: `dynplan/models/weights/`); `budgets`: stage → TrainBudget
+    fields of its training."""
 
     name: str
     tokenizer: VQVAEConfig
@@ -32,6 +37,7 @@ class WorldModelSpec:
     budgets: Mapping[str, Mapping] = field(default_factory=dict)
     weights: Mapping[str, str] = field(default_factory=dict)
     description: str = ""
+    weights_dir: Path | None = None
 
     @property
     def world(self) -> str:
@@ -60,16 +66,38 @@ def register_world_model(spec: WorldModelSpec, replace: bool = False) -> WorldMo
     return spec
 
 
+def _register_models_of(world_name: str) -> None:
+    """Import the module of world `world_name` that registers its configurations (`World.models`), if it has one."""
+    module = world(world_name).models
+    if module is not None:
+        import_module(module)
+
+
+def world_model_names() -> list[str]:
+    """Every registered configuration of every world, in the order they were registered."""
+    for name in world_names():
+        _register_models_of(name)
+    return list(WORLD_MODELS)
+
+
 def world_model_spec(name: str) -> WorldModelSpec:
     """The configuration called `name` (a ValueError naming the known ones otherwise)."""
+    if name not in WORLD_MODELS:
+        world_model_names()
     try:
         return WORLD_MODELS[name]
     except KeyError:
         raise ValueError(f"model must be one of {sorted(WORLD_MODELS)}, got {name!r}") from None
 
 
+def is_world_model(name: str) -> bool:
+    """Whether `name` is a registered configuration (of any world)."""
+    return name in WORLD_MODELS or name in world_model_names()
+
+
 def models_of(world_name: str) -> list[str]:
     """The configurations that model world `world_name`, in the order they were registered."""
+    _register_models_of(world_name)
     return [name for name, spec in WORLD_MODELS.items() if spec.world == world_name]
 
 
@@ -82,7 +110,7 @@ def default_model(world_name: str) -> str:
 def caution_for(model: str, overrides: Mapping[str, float] | None = None) -> Caution:
     """Configuration `model`'s own caution with `overrides` (field → value, e.g. from the command line) applied;
     an unknown configuration has none of its own."""
-    own = WORLD_MODELS[model].caution if model in WORLD_MODELS else Caution()
+    own = world_model_spec(model).caution if is_world_model(model) else Caution()
     return Caution(**{**own.model_dump(), **(overrides or {})})
 
 
@@ -102,11 +130,4 @@ register_world_model(WorldModelSpec(
     weights={"vqvae": "vqvae-default.pt", "pixelcnn": "pixelcnn-default.pt"},
     description="ours: 12 × 12 patch-local codes from 4096, calibrated categorical decoder, 32 × 8 prior, "
                 "occupancy 0.1 and a one-pixel lane margin",
-))  # fmt: skip
-register_world_model(WorldModelSpec(
-    "freeway", PRESETS["freeway"], PIXELCNN_PRESETS["freeway"],
-    budgets={"vqvae": {"epochs": 24, "steps_per_epoch": 1000},
-             "pixelcnn": {"epochs": 10, "steps_per_epoch": 500, "threads": 2}},
-    weights={"vqvae": "vqvae-freeway.pt", "pixelcnn": "pixelcnn-freeway.pt"},
-    description="Atari Freeway's: 40 × 38 patch-local codes from 640, the prior over lane strips of 4 × 38",
 ))  # fmt: skip

@@ -21,9 +21,9 @@ from torch import nn
 from dynplan.config import Config, ConfigError
 from dynplan.data.patches import tiles
 from dynplan.env.config import GOAL_VALUE
-from dynplan.env.worlds import DEFAULT_WORLD, world
 from dynplan.models.likelihood import Categorical, DMoL, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
+from dynplan.world import DEFAULT_WORLD, world
 
 #: Frames the decoder decodes in one pass at inference: the paper's convolutional decoder is faster per frame in
 #: blocks of about this many than over hundreds at once, whose activations leave the caches.
@@ -155,13 +155,6 @@ PRESETS: dict[str, VQVAEConfig] = {
         calibrate_decoder=True,
     ),
 }
-
-# Atari Freeway's lanes (154 × 152, 14 values, docs/worlds.md): the default's patch-local content-fitted codes,
-# the frame padded with 6 rows of road above so that code rows 4i … 4i + 3 are lane i (a 40 × 38 grid); 640 codes
-# hold every distinct 4 × 4 patch of the training modes (627); no goal to weigh.
-PRESETS["freeway"] = VQVAEConfig(**{**PRESETS["default"].model_dump(), "name": "freeway", "world": "freeway",
-                                    "height": 154, "width": 152, "pad_top": 6, "codebook_size": 640,
-                                    "goal_weight": 1.0})  # fmt: skip
 
 
 def _conv(c_in: int, c_out: int, stride: int, local: bool = False) -> nn.Module:

@@ -26,7 +26,6 @@ import numpy as np
 import torch
 
 from dynplan.env.config import FREE, GOAL_VALUE
-from dynplan.env.worlds import DEFAULT_WORLD
 from dynplan.models import checkpoint
 from dynplan.models.caution import Caution, merge_samples, unsure_obstacles, widen_obstacles
 from dynplan.models.chain import ChainSpec, chain
@@ -38,6 +37,7 @@ from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
 from dynplan.models.streams import observation_stream
 from dynplan.models.vqvae import VQVAE
 from dynplan.planning.forward import ForwardModel, Prediction
+from dynplan.world import DEFAULT_WORLD
 
 #: The most frames ahead one prediction may ask for: more than any episode of the paper's 48 × 48 world lasts (407
 #: frames for the 1× agent), so no planner meets it; it bounds what one call may cost.

@@ -1,6 +1,7 @@
 """Run-scale presets of the collect-train-eval pipeline, per world: how much to collect, how long to train each
-world-model stage, what to evaluate. Presets are data — `PIPELINE_PRESETS[world][name]` — validated like every
-other config.
+world-model stage, what to evaluate. Presets are data — `pipeline_presets(world)[name]`, each world's from its
+`WorldParts.presets` — validated like every other config; a preset's evaluation is its world's plan
+(`WorldParts.evaluation_plan`).
 
 The road's:
 
@@ -11,31 +12,22 @@ The road's:
   episodes per case, every technique, both agent speeds, k = 1, 3, 5, 10 — starting from the committed weights
   where they exist (training them took hours here) instead of retraining.
 - `smoke`: the smallest run that exercises every stage, for tests and the deployment check.
-
-Freeway's (`--world freeway`; every run records the 8 game modes, and the world model trains on the modes
-`split_of` gives it):
-- `quick`: both stages from scratch with short budgets, then the oracle and the learned agent play one episode of
-  mode 0 on the real game — end to end in minutes.
-- `full`: the committed weights and the committed evaluation (modes 0 and 4, 20 episodes, every technique).
-- `smoke`: tiny models; always-UP plays one episode (a learned tiny model would spend minutes on 2,048 steps).
 """
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, SerializeAsAny, model_validator
 
 from dynplan.config import Config
-from dynplan.env.worlds import DEFAULT_WORLD, FREEWAY, ROAD, WORLDS
-from dynplan.evaluation import freeway
 from dynplan.evaluation.cases import AGENT_SPEEDS, ROLLOUT_STEPS
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.models.pixelcnn import PixelCNNConfig
 from dynplan.models.registry import models_of, world_model_spec
 from dynplan.models.vqvae import VQVAEConfig
-from dynplan.planning.chicken import ChickenSearch
 from dynplan.training.loop import TrainBudget
+from dynplan.world import DEFAULT_WORLD, world, world_names
 
 
 class StagePlan(Config):
@@ -68,71 +60,47 @@ class EvalPlan(Config):
         return tuple(t for t in self.techniques if TECHNIQUES[t].world_model)
 
 
-class FreewayEvalPlan(Config):
-    """Which Freeway episodes to play on the real game (see `dynplan.evaluation.freeway`)."""
-
-    world: Literal["freeway"] = Field("freeway", description="the world this evaluation plays")
-    techniques: tuple[str, ...] = Field(("oracle", "learned"), description="techniques to play")
-    modes: tuple[int, ...] = Field((0,), min_length=1, description="game modes, each 0 … 7")
-    episodes: int = Field(20, ge=1, le=1000, description="episodes (NOOP starts) per mode")
-    seed: int = Field(0, ge=0, le=2**31, description="seed of the NOOP starts' draw")
-    horizon: int = Field(8, ge=1, le=64, description="the search's horizon k")
-
-    @model_validator(mode="after")
-    def _check(self) -> FreewayEvalPlan:
-        unknown = [t for t in self.techniques if t not in freeway.TECHNIQUES]
-        if unknown:
-            raise ValueError(f"unknown techniques {unknown}; known: {list(freeway.TECHNIQUES)}")
-        for mode in self.modes:
-            freeway.FreewayPlan(mode=mode)
-        ChickenSearch(horizon=self.horizon)
-        return self
-
-    @property
-    def learned_techniques(self) -> tuple[str, ...]:
-        return tuple(t for t in self.techniques if t == "learned")
-
-    def plans(self) -> list[freeway.FreewayPlan]:
-        """The episodes of each mode."""
-        return [freeway.FreewayPlan(mode=m, episodes=self.episodes, seed=self.seed) for m in self.modes]
-
-
-#: A world's evaluation plan, told apart by its `world` field.
-Evaluation = Annotated[EvalPlan | FreewayEvalPlan, Field(discriminator="world")]
+def evaluation_plan(world_name: str) -> type[Config]:
+    """The type of world `world_name`'s evaluation plan (the road's: `EvalPlan`); a ValueError if it has none."""
+    plan = EvalPlan if world_name == DEFAULT_WORLD else world(world_name).load().evaluation_plan
+    if plan is None:
+        raise ValueError(f"the {world_name} world has no evaluation plan (its WorldParts.evaluation_plan)")
+    return plan
 
 
 class PipelinePreset(Config):
     """Everything a collect-train-eval run does, by stage."""
 
     name: str = Field(description="preset name; the run's outputs go to OUT/<folder>/ (see `folder`)")
-    world: str = Field(DEFAULT_WORLD, description=f"the world ({', '.join(WORLDS)})")
+    world: str = Field(DEFAULT_WORLD, description="the world (a registered world's name)")
     description: str = Field("", description="one line for humans (the deployment's description)")
     train_episodes: int = Field(ge=5, le=1_000_000, description="episodes recorded for training (seeds 0 …)")
     models: tuple[str, ...] = Field(("default",), description="world-model configurations (registry names)")
     pretrained: bool = Field(False, description="use the committed weights of a configuration instead of training")
     vqvae: dict[str, StagePlan] = Field(default_factory=dict, description="VQ-VAE stage per configuration")
     pixelcnn: dict[str, StagePlan] = Field(default_factory=dict, description="PixelCNN stage per configuration")
-    evaluation: Evaluation = Field(default_factory=EvalPlan)
+    evaluation: SerializeAsAny[Config] = Field(default_factory=EvalPlan, description="the world's evaluation plan")
     report_episodes: int = Field(10, ge=1, le=100, description="held-out episodes for the prediction-error figure")
 
     @model_validator(mode="before")
     @classmethod
     def _evaluation_of_the_world(cls, data: Any) -> Any:
-        """An evaluation given without its world, or none, is the run's world's."""
+        """An evaluation given as fields, or none, is a plan of its own world or else the run's world."""
         if isinstance(data, dict) and isinstance(evaluation := data.get("evaluation", {}), dict):
-            world = data.get("world", DEFAULT_WORLD)
-            data = {**data, "evaluation": {"world": world if world in WORLDS else DEFAULT_WORLD, **evaluation}}
+            name = evaluation.get("world", data.get("world", DEFAULT_WORLD))
+            data = {**data, "evaluation": evaluation_plan(name if name in world_names() else DEFAULT_WORLD)(
+                **{"world": name if name in world_names() else DEFAULT_WORLD, **evaluation})}  # fmt: skip
         return data
 
     @model_validator(mode="after")
     def _check(self) -> PipelinePreset:
-        if self.world not in WORLDS:
-            raise ValueError(f"world {self.world!r} is not one of {', '.join(WORLDS)}")
+        if self.world not in world_names():
+            raise ValueError(f"world {self.world!r} is not one of {', '.join(world_names())}")
         if not set(self.models) <= set(models_of(self.world)):
             raise ValueError(f"models must be among {sorted(models_of(self.world))}, got {self.models}")
         if self.evaluation.world != self.world:
             raise ValueError(f"the evaluation plays the {self.evaluation.world} world, not this run's {self.world}")
-        last = WORLDS[self.world].seeds[1]
+        last = world(self.world).seeds[1]
         if self.train_episodes > last + 1:
             raise ValueError(f"train_episodes={self.train_episodes} is invalid for the {self.world} world; valid range "
                              f"[5, {last + 1}] (its seeds 0 … {last})")  # fmt: skip
@@ -176,8 +144,8 @@ _QUICK_PIXELCNN = StagePlan(
     overrides={"channels": 32, "layers": 4, "condition_channels": 32, "learning_rate": 1e-3, "batch_size": 64},
     budget=TrainBudget(epochs=12, steps_per_epoch=60, val_frames=200),
 )
-# Tiny models: every stage runs, nothing is learned.
-_SMOKE_BUDGET = TrainBudget(epochs=1, steps_per_epoch=5, val_frames=20, threads=1)
+#: Tiny models: every stage runs, nothing is learned.
+SMOKE_BUDGET = TrainBudget(epochs=1, steps_per_epoch=5, val_frames=20, threads=1)
 _SMOKE_VQVAE = StagePlan(
     overrides={
         "channels": (8, 8, 8),
@@ -188,16 +156,17 @@ _SMOKE_VQVAE = StagePlan(
         "learning_rate": 1e-3,
         "batch_size": 8,
     },
-    budget=_SMOKE_BUDGET,
+    budget=SMOKE_BUDGET,
 )
 _SMOKE_PIXELCNN = StagePlan(
     overrides={"channels": 8, "layers": 2, "condition_channels": 8, "embed_dim": 4, "batch_size": 8},
-    budget=_SMOKE_BUDGET,
+    budget=SMOKE_BUDGET,
 )
 
 _BOTH = ("default", "paper")
 
-_ROAD_PRESETS: dict[str, PipelinePreset] = {
+#: The road's presets, by name (`pipeline_presets`).
+ROAD_PRESETS: dict[str, PipelinePreset] = {
     "quick": PipelinePreset(
         name="quick",
         description="End to end in minutes on a laptop: small models from scratch, 5 evaluation episodes.",
@@ -234,63 +203,17 @@ _ROAD_PRESETS: dict[str, PipelinePreset] = {
     ),
 }
 
-# Freeway's quick budgets: the tokenizer's epoch of 1,000 batches takes about 18 s on 2 cores, the prior's of 500
-# about 100 s; validation scores few items. `--world freeway --preset quick` is measured in docs/worlds.md.
-_FREEWAY_QUICK_VQVAE = StagePlan(budget=TrainBudget(epochs=12, steps_per_epoch=1000, val_frames=200))
-_FREEWAY_QUICK_PIXELCNN = StagePlan(budget=TrainBudget(epochs=4, steps_per_epoch=500, val_frames=100))
-_FREEWAY_SMOKE_VQVAE = StagePlan(
-    overrides={"channels": (8, 8), "residual_blocks": 0, "latent_dim": 4, "codebook_size": 16, "batch_size": 64},
-    budget=_SMOKE_BUDGET,
-)
-_FREEWAY_SMOKE_PIXELCNN = StagePlan(
-    overrides={"channels": 8, "layers": 2, "condition_channels": 8, "embed_dim": 4, "batch_size": 8},
-    budget=_SMOKE_BUDGET,
-)
-_FREEWAY = FREEWAY.name
-_FREEWAY_MODES = 8  # every game mode is recorded; the split decides which the world model trains on
 
-_FREEWAY_PRESETS: dict[str, PipelinePreset] = {
-    "quick": PipelinePreset(
-        name="quick",
-        world=_FREEWAY,
-        description="Freeway end to end in minutes: both stages from scratch, oracle and learned on one episode.",
-        train_episodes=_FREEWAY_MODES,
-        models=("freeway",),
-        vqvae={"freeway": _FREEWAY_QUICK_VQVAE},
-        pixelcnn={"freeway": _FREEWAY_QUICK_PIXELCNN},
-        evaluation=FreewayEvalPlan(techniques=("oracle", "learned"), modes=(0,), episodes=1),
-    ),
-    "full": PipelinePreset(
-        name="full",
-        world=_FREEWAY,
-        description="Freeway's committed weights and evaluation: modes 0 and 4, 20 episodes, every technique.",
-        train_episodes=_FREEWAY_MODES,
-        models=("freeway",),
-        pretrained=True,
-        vqvae={"freeway": StagePlan(budget=TrainBudget(**world_model_spec("freeway").budgets["vqvae"]))},
-        pixelcnn={"freeway": StagePlan(budget=TrainBudget(**world_model_spec("freeway").budgets["pixelcnn"]))},
-        evaluation=FreewayEvalPlan(techniques=freeway.TECHNIQUES, modes=(0, 4), episodes=20),
-    ),
-    "smoke": PipelinePreset(
-        name="smoke",
-        world=_FREEWAY,
-        description="Freeway's every stage on tiny models in a minute (tests, deployment checks).",
-        train_episodes=_FREEWAY_MODES,
-        models=("freeway",),
-        vqvae={"freeway": _FREEWAY_SMOKE_VQVAE},
-        pixelcnn={"freeway": _FREEWAY_SMOKE_PIXELCNN},
-        evaluation=FreewayEvalPlan(techniques=("up",), modes=(0,), episodes=1),
-    ),
-}
-
-#: The presets of each world, by name.
-PIPELINE_PRESETS: dict[str, dict[str, PipelinePreset]] = {ROAD.name: _ROAD_PRESETS, _FREEWAY: _FREEWAY_PRESETS}
+def pipeline_presets(world_name: str = DEFAULT_WORLD) -> dict[str, PipelinePreset]:
+    """The presets of `world_name`, by name (its `WorldParts.presets`); a ValueError naming the worlds otherwise."""
+    if world_name not in world_names():
+        raise ValueError(f"world {world_name!r} is not one of {', '.join(world_names())}")
+    return dict(world(world_name).load().presets)
 
 
-def pipeline_preset(name: str, world: str = DEFAULT_WORLD) -> PipelinePreset:
-    """The preset `name` of `world`; a ValueError naming the valid ones otherwise."""
-    if world not in PIPELINE_PRESETS:
-        raise ValueError(f"world {world!r} is not one of {', '.join(PIPELINE_PRESETS)}")
-    if name not in PIPELINE_PRESETS[world]:
-        raise ValueError(f"preset must be one of {sorted(PIPELINE_PRESETS[world])} for the {world} world, got {name!r}")
-    return PIPELINE_PRESETS[world][name]
+def pipeline_preset(name: str, world_name: str = DEFAULT_WORLD) -> PipelinePreset:
+    """The preset `name` of `world_name`; a ValueError naming the valid ones otherwise."""
+    presets = pipeline_presets(world_name)
+    if name not in presets:
+        raise ValueError(f"preset must be one of {sorted(presets)} for the {world_name} world, got {name!r}")
+    return presets[name]

@@ -1,5 +1,6 @@
 """The collect-train-eval report: the world's results and pictures (the road's: Table 1 beside the paper,
-prediction error against horizon, a Figure-1 image, a GIF of one episode; Freeway's: `freeway_report`), the
+prediction error against horizon, a Figure-1 image, a GIF of one episode; another world's: its
+`PipelineStages.report`), the
 stages' wall times, and the config and checkpoint of every stage — as Markdown, and as HTML rendered from it
 (markdown-it), with the pictures beside them.
 

@@ -1,1 +1,0 @@
-"""Measurements that guide design choices (not needed at run time)."""

@@ -1,0 +1,146 @@
+"""Freeway's runs in the results store (`dynplan.evaluation.store`, the same for every world): what a manifest and a
+row hold, and the check that replays a row's recorded actions in a fresh emulator.
+
+    <root>/runs/<run>/manifest.json   role, world `freeway-v1`, the emulator's settings, the learned technique's
+                                      weights (SHA-256), every command that played the run
+    <root>/runs/<run>/episodes.jsonl  one row per episode: its case (technique, world model, mode, seed of the NOOP
+                                      starts' draw, episode, horizon), the weights' SHA-256 (learned), the NOOP
+                                      start, score, knocks, steps, median decision ms, the actions and the code
+
+The actions are one digit a step (0 NOOP, 1 UP, 2 DOWN): the game is deterministic, so a row's score, knocks and
+steps follow from its mode, NOOP start and actions alone (`replay_check`), whatever played them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, WorldModelEntry
+from dynplan.models.checkpoint import weights_sha256
+from dynplan.models.world_model import world_model_paths
+from dynplan.world_parts import RunKind
+from dynplan.worlds.freeway import WORLD
+from dynplan.worlds.freeway.game import GAME_STEPS, MODES, FreewayEpisode, FreewayGame
+
+#: The techniques a row may name (`dynplan.worlds.freeway.evaluation.TECHNIQUES`).
+TECHNIQUE_NAMES = ("oracle", "learned", "extrapolate", "zero", "up", "random")
+#: The emulator every run so far plays: deterministic, frameskip 4.
+SETTINGS = {"repeat_action_probability": 0.0, "frameskip": 4}
+
+Text = Annotated[str, Field(min_length=1)]
+Count = Annotated[int, Field(ge=0)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(frozen=True, strict=True, extra="forbid", allow_inf_nan=False)
+
+
+class Settings(_Strict):
+    """What every row of a run depends on besides its case: the emulator's options."""
+
+    repeat_action_probability: Annotated[float, Field(ge=0.0, le=1.0)]
+    frameskip: Literal[4]
+
+
+class FreewayManifest(_Strict):
+    """A Freeway run's `manifest.json`."""
+
+    format: Literal[FORMAT]
+    name: Annotated[str, Field(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,99}$")]
+    role: Literal[ROLES]
+    world: Literal["freeway-v1"]
+    settings: Settings
+    world_models: dict[Text, WorldModelEntry]
+    invocations: list[Invocation]
+
+
+class FreewayRow(_Strict):
+    """One line of a Freeway run's `episodes.jsonl`."""
+
+    technique: Literal[TECHNIQUE_NAMES]
+    model: Text | None
+    mode: Annotated[int, Field(ge=0, le=len(MODES) - 1)]
+    seed: Annotated[int, Field(ge=0, le=2**31)]
+    episode: Annotated[int, Field(ge=0, le=999)]
+    horizon: Annotated[int, Field(ge=1, le=64)]
+    noop_start: Annotated[int, Field(ge=0, le=30)]
+    score: Annotated[float, Field(ge=0.0, le=GAME_STEPS)]
+    knocks: Annotated[int, Field(ge=0, le=GAME_STEPS)]
+    steps: Annotated[int, Field(ge=1, le=GAME_STEPS)]
+    decision_ms: Annotated[float, Field(ge=0.0)] | None
+    actions: Annotated[str, Field(pattern=r"^[012]+$")]
+    world_model_sha256: Text = None
+    code_version: Text
+
+    @model_validator(mode="after")
+    def _one_action_a_step(self) -> FreewayRow:
+        if len(self.actions) != self.steps:
+            raise ValueError(f"holds {len(self.actions)} actions for its {self.steps} steps")
+        if (self.technique == "learned") != (self.model is not None):
+            raise ValueError(f"technique {self.technique!r} {'needs' if self.model is None else 'takes no'} model")
+        if not math.isclose(self.score, round(self.score)):
+            raise ValueError(f"score {self.score} is not a count of crossings")
+        return self
+
+
+def expected(manifest: Mapping, case: Mapping) -> dict:
+    """What a manifest asks of a row's provenance: the weights its world model recorded (learned rows)."""
+    model = case.get("model")
+    return {"world_model_sha256": manifest["world_models"].get(model, {}).get("weights_sha256") if model else None}
+
+
+STAGES = ("vqvae", "pixelcnn")
+
+RUNS = RunKind(
+    world=WORLD.id,
+    manifest_schema=FreewayManifest,
+    row_schema=FreewayRow,
+    case_keys=("technique", "model", "mode", "seed", "episode", "horizon"),
+    provenance_keys=("world_model_sha256",),
+    result_keys=("noop_start", "score", "knocks", "steps", "decision_ms", "actions", "code_version"),
+    expected=expected,
+)
+
+
+#: The checkout: weights inside it are recorded relative to it, so a manifest reads the same on every machine.
+_ROOT = Path(__file__).resolve().parents[3]
+
+
+def weights_entry(model: str, model_dir: str | os.PathLike | None) -> dict:
+    """What a manifest records of the world model `model` in `model_dir` (holding vqvae.pt and pixelcnn.pt; None:
+    the committed weights): their SHA-256, joined, and the files."""
+    paths = world_model_paths(model) if model_dir is None else [Path(model_dir, f"{s}.pt") for s in STAGES]
+    shown = [str(p.resolve().relative_to(_ROOT)) if _ROOT in p.resolve().parents else str(p) for p in paths]
+    return {"weights_sha256": "+".join(weights_sha256(p) for p in paths), "weights": shown}
+
+
+def replayed(row: Mapping) -> tuple[float, int, int, bool]:
+    """The score, knocks and steps of `row`'s actions played from its mode's NOOP start in a fresh emulator, and
+    whether the game ended on the last of them."""
+    game = FreewayGame(FreewayEpisode(mode=row["mode"], noop_start=row["noop_start"]))
+    score, knocks, steps, done = 0.0, 0, 0, False
+    for digit in row["actions"]:
+        before = game.chicken
+        step = game.step(int(digit))
+        score, steps, done = score + step.reward, steps + 1, step.done
+        knocks += before.timer == 0 and step.chicken.knocked
+        if done:
+            break
+    return score, int(knocks), steps, done and steps == len(row["actions"])
+
+
+def replay_check(row: Mapping) -> str | None:
+    """None when `row`'s actions, played again, give its score, knocks and steps and end the game on the last;
+    else what differs."""
+    score, knocks, steps, ended = replayed(row)
+    if (score, knocks, steps) == (row["score"], row["knocks"], row["steps"]) and ended:
+        return None
+    end = "" if ended else ", the game not ending on the last"
+    said = f"{row['score']:g}, {row['knocks']}, {row['steps']}"
+    return f"its actions replay to score {score:g}, {knocks} knocks, {steps} steps{end}; the row says {said}"

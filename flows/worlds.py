@@ -1,0 +1,244 @@
+"""The commands of a world that brings its own (`dynplan.world_parts`): one path for every such world.
+
+`flows.evaluate`, `flows.replay` and `flows.play` with `--world W` hand their arguments here when W's `WorldParts`
+has the command: its options are added to a parser of the command's own, its request is made and checked before any
+flow machinery starts (a bad value is one line and exit status 2), and the work runs as a Prefect flow (evaluate:
+one task a job; replay: one flow run) or a pygame window (play).
+"""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import json
+import shlex
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any
+
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
+from prefect.futures import as_completed
+
+from dynplan.cli import Bounded, CommandParser, add_debug_option, named_world
+from dynplan.files import atomic_path
+from dynplan.paths import PathArgument, PathKind
+from dynplan.progress import progress
+from dynplan.world import DEFAULT_WORLD, world, world_names
+from dynplan.world_parts import EvaluateCommand, PlayCommand, PlayState, ReplayCommand, WorldParts
+from flows.runners import task_runner
+from flows.window import PanelWindow, checked_window_options
+
+#: A world's half of one of the commands.
+Command = EvaluateCommand | ReplayCommand | PlayCommand
+
+
+def own_command(argv: Sequence[str], command: Callable[[WorldParts], Command | None]) -> tuple[str, Any] | None:
+    """(world, its half of a command: `command` of its parts) when `argv` names a world other than the default whose
+    parts have one; else None (the flows' own command parses `argv`, and names an unknown world)."""
+    name = named_world(list(argv))
+    if name == DEFAULT_WORLD or name not in world_names():
+        return None
+    own = command(world(name).load())
+    return None if own is None else (name, own)
+
+
+def parser_for(prog: str, name: str, own: Command) -> CommandParser:
+    """A command's parser for world `name`: its half's docstring, `--world`, then the options its half adds."""
+    description = inspect.cleandoc(type(own).__doc__ or "")
+    parser = CommandParser(
+        prog=f"{prog} --world {name}", description=description, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--world", choices=[name], default=name, help=name)
+    own.add_arguments(parser)
+    return parser
+
+
+def _request(parser: argparse.ArgumentParser, own: EvaluateCommand | ReplayCommand, args: argparse.Namespace) -> Any:
+    """The request `args` make, checked (a bad value or input exits with one line)."""
+    try:
+        return own.request(args)
+    except ValueError as error:  # an InputError, a ConfigError, a CheckpointError too
+        parser.error(str(error))
+
+
+@task(name="play-world-job", cache_policy=NO_CACHE)
+def world_job_task(world_name: str, request: dict, job: dict) -> dict:
+    """One job of a world's evaluation, played into its results."""
+    own = world(world_name).load().evaluate
+    return own.play(own.request_type(**request), job)
+
+
+@flow(name="evaluate-world", log_prints=True)
+def evaluate_world(world_name: str, request: dict, command: str) -> list[dict]:
+    """Begin the run of `request` (a world's evaluation request, as a dict; `command`: what its manifest records)
+    and play every episode it lacks, one task each; print and return the summary of its run."""
+    own = world(world_name).load().evaluate
+    checked = own.request_type(**request)
+    futures = [world_job_task.submit(world_name, request, job) for job in own.start(checked, command)]
+    for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} episodes"):
+        future.result()
+    summary = own.summary(checked)
+    for line in own.describe(summary):
+        print(line)
+    return summary
+
+
+def evaluate_main(name: str, own: EvaluateCommand, argv: Sequence[str]) -> list[dict]:
+    """`flows.evaluate --world NAME …`."""
+    parser = parser_for("python -m flows.evaluate", name, own)
+    parser.add_argument("--workers", type=Bounded(int, 1, 64), default=None, help="episodes at once (default: cores)")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    check = "play nothing: replay each row of the run in a fresh game against its outcome (exit 1 naming misfits)"
+    parser.add_argument("--check", action="store_true", help=check)
+    add_debug_option(parser)
+    args = parser.parse_args(list(argv))
+    request = _request(parser, own, args)
+    if args.check:
+        return _check(own, request)
+    command = shlex.join(["python", "-m", "flows.evaluate", *argv])
+    summary = evaluate_world.with_options(task_runner=task_runner(None, args.workers))(
+        world_name=name, request=request.model_dump(mode="json"), command=command
+    )
+    if args.json:
+        print(json.dumps(summary))
+    return summary
+
+
+def _check(own: EvaluateCommand, request: Any) -> list[dict]:
+    """`--check`: every row's actions replayed; exit 1 naming the rows that do not hold."""
+    problems = own.check(request)
+    if problems:
+        print("\n".join(problems), file=sys.stderr)
+        raise SystemExit(1)
+    summary = own.summary(request)
+    print("\n".join(own.describe(summary)))
+    print("every row of the run holds when its actions are replayed")
+    return summary
+
+
+@flow(name="replay-world-episode", log_prints=True)
+def replay_world(world_name: str, request: dict) -> dict:
+    """Replay one episode of a world (its replay request, as a dict) into a log; print the result in one line."""
+    own = world(world_name).load().replay
+    result = own.replay(own.request_type(**request))
+    print(own.describe(result))
+    return result
+
+
+def replay_main(name: str, own: ReplayCommand, argv: Sequence[str]) -> dict:
+    """`flows.replay --world NAME LOG …`."""
+    parser = parser_for("python -m flows.replay", name, own)
+    parser.add_argument("log", type=PathArgument(PathKind.LOG), help=f"a {name} log (.mcap) from flows.collect")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_debug_option(parser)
+    args = parser.parse_args(list(argv))
+    request = _request(parser, own, args)
+    result = replay_world(world_name=name, request=request.model_dump(mode="json"))
+    if args.json:
+        print(json.dumps(result))
+    return result
+
+
+def play_main(name: str, own: PlayCommand, argv: Sequence[str]) -> PlayState:
+    """`flows.play --world NAME …`: the window around the world's play state."""
+    parser = parser_for("python -m flows.play", name, own)
+    parser.add_argument("--watch", action="store_true", help="start with the planner playing")
+    parser.add_argument(
+        "--record",
+        type=PathArgument(PathKind.OUTPUT_FILE),
+        default=None,
+        help="write what was played to this replay log (.mcap) at the end",
+    )
+    parser.add_argument(
+        "--scale",
+        type=int,
+        default=own.scale,
+        choices=range(1, 17),
+        metavar="1..16",
+        help=f"pixels per pixel of the world (default {own.scale})",
+    )
+    parser.add_argument(
+        "--fps", type=Bounded(float, 0.01, 1000.0), default=15.0, help="frames per second while the planner plays"
+    )
+    parser.add_argument(
+        "--screenshot",
+        type=PathArgument(PathKind.OUTPUT_FILE),
+        default=None,
+        help="save the window's last picture to this PNG at the end",
+    )
+    parser.add_argument(
+        "--script", default=None, help="key names separated by commas, one per frame, then quit (headless runs)"
+    )
+    args = parser.parse_args(list(argv))
+    script = checked_window_options(parser, args)
+    try:
+        state = own.state(args)
+    except ValueError as error:  # a CheckpointError too
+        parser.exit(2, f"python -m flows.play: error: {error}\n")
+    return play_window(state, PlayOptions(args.scale, args.fps, args.watch, script, args.record, args.screenshot))
+
+
+class PlayOptions:
+    """How a play window runs: its scale and frame rate, whether the planner starts playing, a headless script of
+    key names, and where the replay log and the last picture go (None: nowhere)."""
+
+    def __init__(
+        self,
+        scale: int = 3,
+        fps: float = 15.0,
+        watch: bool = False,
+        script: Iterable[str] | None = None,
+        record: str | None = None,
+        screenshot: str | None = None,
+    ) -> None:
+        self.scale, self.fps, self.watch, self.record, self.screenshot = scale, fps, watch, record, screenshot
+        self.script = None if script is None else list(script)
+
+
+def _handle(state: PlayState, name: str, planner_plays: bool, paused: bool) -> tuple[bool, bool]:
+    """One key press: its effect on the state; returns (planner_plays, paused)."""
+    if name == "r":
+        state.reset()
+    elif name == "k":
+        state.cycle_horizon()
+    elif name == "p":
+        planner_plays = not planner_plays
+    elif name == "space":
+        paused = not paused
+    elif name in state.keys and state.running and not planner_plays:
+        state.step(state.keys[name])
+    return planner_plays, paused
+
+
+def play_window(state: PlayState, options: PlayOptions | None = None) -> PlayState:
+    """Run the window until ESC or the window closes. `options.script`: key names fed in as real key events, one
+    per frame (then the window quits) — how the tests play it headless."""
+    import pygame
+
+    options = options or PlayOptions()
+    panels = state.panels()
+    window = PanelWindow(panels[0][0].shape[:2], len(panels), options.scale, state.caption, 110)
+    clock, paused, planner_plays, keys = pygame.time.Clock(), False, options.watch, options.script
+    try:
+        while keys is None or keys:
+            if keys is not None:
+                pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.key.key_code(keys.pop(0))))
+            events = pygame.event.get()
+            names = [pygame.key.name(e.key) for e in events if e.type == pygame.KEYDOWN]
+            if any(e.type == pygame.QUIT for e in events) or "escape" in names:
+                break
+            for name in names:
+                planner_plays, paused = _handle(state, name, planner_plays, paused)
+            if planner_plays and not paused and state.running:
+                state.step(*state.planner_action())
+            window.show(state.panels(), state.status(planner_plays, paused))
+            clock.tick(options.fps)
+        if options.screenshot is not None:
+            with atomic_path(options.screenshot, keep_suffix=True) as tmp:
+                pygame.image.save(window.screen, str(tmp))
+    finally:
+        pygame.quit()
+        if options.record is not None and state.turns:
+            print(f"recorded {state.record(options.record)}")
+    return state
