@@ -115,7 +115,7 @@ class Run:
     def __init__(self, root: str | os.PathLike, name: str = EVALUATION_RUN, kind: RunKind | None = None) -> None:
         self.root = Path(root)
         self.name = check_run_name(name)
-        self._kind = kind
+        self._kind, self._manifests_kind = kind, None
         self.dir = self.root / "runs" / name
         self.manifest_path = self.dir / "manifest.json"
         self.episodes_path = self.dir / "episodes.jsonl"
@@ -129,10 +129,13 @@ class Run:
 
     @property
     def kind(self) -> RunKind:
-        """What the run holds: its manifest's world's kind, or (no manifest yet) the one it was made with."""
-        if not self.exists():
-            return self._kind or ROAD_RUNS
-        return kind_of(_world_field(self.manifest_path), self.manifest_path)
+        """What the run holds: its manifest's world's kind (read once: a run's world never changes), or (no manifest
+        yet) the one it was made with."""
+        if self._manifests_kind is None:
+            if not self.exists():
+                return self._kind or ROAD_RUNS
+            self._manifests_kind = kind_of(_world_field(self.manifest_path), self.manifest_path)
+        return self._manifests_kind
 
     # -- manifest ---------------------------------------------------------------------------------------------
     def manifest(self) -> dict:
