@@ -12,9 +12,9 @@ A package adds a world by naming its spec in its own `pyproject.toml`:
     [project.entry-points."dynplan.worlds"]
     myworld = "mypackage.world:WORLD"
 
-Importing the registry imports no world; `world(name)` imports the one named (a world's extra, such as Freeway's
-`atari`, only when its game is played). dynplan's own worlds are the road (`dynplan.worlds.road`, the default) and Atari
-Freeway (`dynplan.worlds.freeway`); docs/worlds.md says how to add one.
+Importing the registry imports no world; `world(name)` imports the one named (and a world's extra only when its
+game is played). dynplan's own worlds are the packages of `dynplan.worlds`, the road the default; docs/worlds.md
+says how to add one.
 """
 
 from __future__ import annotations

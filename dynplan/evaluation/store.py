@@ -19,7 +19,7 @@ read once.
 
 Every world's runs have this layout and these guarantees; what a run's manifest and rows hold is its world's
 (`RunKind`: the schemas, the keys of a case and of its provenance, and what the manifest asks of each row). A
-manifest names its world (`world`: an id such as `freeway-v1`); one without that field is the road's, whose
+manifest names its world (`world`: its versioned id, `<name>-v<N>`); one without that field is the road's, whose
 `RunKind` is `ROAD_RUNS`. Each world keeps its runs under a root of its own (the road's `datasets/results`,
 another world's `datasets/results/<world>`).
 """
