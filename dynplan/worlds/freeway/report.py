@@ -16,6 +16,7 @@ from dynplan.evaluation.store import StoreError, shown
 from dynplan.files import write_bytes_atomic
 from dynplan.models.checkpoint import digest
 from dynplan.worlds.freeway import evaluation as freeway
+from dynplan.worlds.freeway.commands import FreewayEvaluation
 from dynplan.worlds.freeway.game import record_mode
 from dynplan.worlds.freeway.presets import FreewayEvalPlan
 from dynplan.worlds.freeway.replay import GIF_STEPS, replay_gif
@@ -95,9 +96,7 @@ class Stages:
     the others' into the reference run (they do not read the weights); the report's table of exactly the plan's
     episodes and the learned agent's GIF."""
 
-    def evaluations(self, preset, work: Path) -> list:
-        from dynplan.worlds.freeway.commands import FreewayEvaluation
-
+    def evaluations(self, preset, work: Path) -> list[FreewayEvaluation]:
         e, models = preset.evaluation, work / "models" / preset.models[0]
         by_run: dict[str, list[str]] = {}
         for technique in e.techniques:
