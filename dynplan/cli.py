@@ -92,8 +92,12 @@ def bounded(model: type[BaseModel], name: str) -> Bounded:
     kind = float if float in (field.annotation, *get_args(field.annotation)) else int
     bounds: dict = {}
     for bound in field.metadata:
-        for attribute, side, excluded in (("ge", "low", False), ("gt", "low", True), ("le", "high", False),
-                                          ("lt", "high", True)):  # fmt: skip
+        for attribute, side, excluded in (
+            ("ge", "low", False),
+            ("gt", "low", True),
+            ("le", "high", False),
+            ("lt", "high", True),
+        ):
             value = getattr(bound, attribute, None)
             if value is not None and kind is int:
                 bounds[side] = value + (0 if not excluded else 1 if side == "low" else -1)

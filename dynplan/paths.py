@@ -64,8 +64,14 @@ _MISSING = {
 
 def _what(mode: int) -> str:
     """What a non-regular file is, in words."""
-    kinds = ((stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"), (stat.S_ISFIFO, "a named pipe"),
-             (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a folder"), (stat.S_ISREG, "a file"))  # fmt: skip
+    kinds = (
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISFIFO, "a named pipe"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISREG, "a file"),
+    )
     for test, name in kinds:
         if test(mode):
             return name
@@ -135,8 +141,9 @@ def _not_an_input(out: Path, shown: str, parameter: str, shape: str, inputs: tup
             raise PathError(f"{parameter} {shown}: holds {source}, which this command reads; choose another path")
 
 
-def check_output(path: str | os.PathLike, parameter: str, kind: str = "file",
-                 inputs: tuple[str | os.PathLike, ...] = ()) -> Path:  # fmt: skip
+def check_output(
+    path: str | os.PathLike, parameter: str, kind: str = "file", inputs: tuple[str | os.PathLike, ...] = ()
+) -> Path:
     """Check, before any work, that `path` can be written as a `kind` ("file" or "folder"): it is not one of
     `inputs`, not inside an input folder (a file) nor holding an input (a folder); an existing file is a regular
     one (never a device node, a pipe or a socket), an existing folder a folder; and the folder it goes in is

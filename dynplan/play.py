@@ -62,8 +62,10 @@ class PlayState:
     def __post_init__(self) -> None:
         self.config = RoadConfig.from_dict(self.world.config.model_dump(), agent_speed=self.agent_speed)
         if len(self.world.frames) < self.config.max_steps:
-            raise ValueError(f"the world holds {len(self.world.frames)} frames; agent speed {self.agent_speed:g} "
-                             f"needs {self.config.max_steps}")  # fmt: skip
+            raise ValueError(
+                f"the world holds {len(self.world.frames)} frames; agent speed {self.agent_speed:g} "
+                f"needs {self.config.max_steps}"
+            )
         if self.k not in HORIZONS:
             raise ValueError(f"k must be one of {HORIZONS}, got {self.k}")
         self._deltas = action_deltas(self.agent_speed)
@@ -161,12 +163,19 @@ class PlayState:
     @property
     def track(self) -> AgentTrack:
         t, positions, actions, rewards, outcomes = self._track
-        return AgentTrack(np.array(t), np.array(positions), np.array(actions, np.int64), np.array(rewards),
-                          tuple(outcomes))  # fmt: skip
+        return AgentTrack(
+            np.array(t), np.array(positions), np.array(actions, np.int64), np.array(rewards), tuple(outcomes)
+        )
 
     def record(self, path: str | os.PathLike) -> Path:
         """Write what was played as a replay log (`flows.replay` and Foxglove open it): the world, the agent's
         track, the imagined frames ({t: frames}: the planner's predictions, or the imagination's frame at t + 1)
         and the planner's search rows."""
-        return write_episode_log(path, self.world, agent=self.track, n_frames=self.config.max_steps,
-                                 imagined=self._recorded or None, search=self._search or None)  # fmt: skip
+        return write_episode_log(
+            path,
+            self.world,
+            agent=self.track,
+            n_frames=self.config.max_steps,
+            imagined=self._recorded or None,
+            search=self._search or None,
+        )

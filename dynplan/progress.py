@@ -12,8 +12,13 @@ T = TypeVar("T")
 
 def progress(items: Iterable[T], total: int | None = None, description: str = "working") -> Iterator[T]:
     """Yield from `items` while drawing a progress bar on stderr (a final line only when not a terminal)."""
-    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-               TimeRemainingColumn())  # fmt: skip
+    columns = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     with Progress(*columns, transient=False) as bar:
         task = bar.add_task(description, total=total)
         for item in items:

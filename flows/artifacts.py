@@ -26,8 +26,19 @@ from prefect.client.schemas.sorting import ArtifactSort
 from dynplan.evaluation.table import render_markdown
 
 #: The table artifact's columns, in order: a row of Table 1 as the evaluation aggregates it.
-TABLE_COLUMNS = ("technique", "model", "agent_speed", "rollout_steps", "episodes", "G", "T", "D", "S_mean", "S_std",
-                 "decision_ms_median")  # fmt: skip
+TABLE_COLUMNS = (
+    "technique",
+    "model",
+    "agent_speed",
+    "rollout_steps",
+    "episodes",
+    "G",
+    "T",
+    "D",
+    "S_mean",
+    "S_std",
+    "decision_ms_median",
+)
 
 
 def artifact_key(kind: str, name: str) -> str:
@@ -75,7 +86,8 @@ class ProgressArtifact:
 def read_artifacts(key: str | None = None, kind: str | None = None, limit: int = 200) -> list[Artifact]:
     """The current Prefect API's artifacts with `key` (every version) or of type `kind` ("table", "markdown",
     "progress"), oldest first."""
-    found = ArtifactFilter(key=ArtifactFilterKey(any_=[key]) if key else None,
-                           type=ArtifactFilterType(any_=[kind]) if kind else None)  # fmt: skip
+    found = ArtifactFilter(
+        key=ArtifactFilterKey(any_=[key]) if key else None, type=ArtifactFilterType(any_=[kind]) if kind else None
+    )
     with get_client(sync_client=True) as client:
         return client.read_artifacts(artifact_filter=found, sort=ArtifactSort.CREATED_DESC, limit=limit)[::-1]

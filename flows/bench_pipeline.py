@@ -58,8 +58,12 @@ def bench_pipeline(quick: bool = True) -> dict[str, dict[str, float]]:
         collect_episodes(out=str(logs), episodes=EVAL["episodes"], seed=1_000_000)
         one = _evaluate_on_cluster(1, logs, root / "results1")
         two = _evaluate_on_cluster(2, logs, root / "results2")
-        results["evaluation_dask"] = {"episodes": EVAL["episodes"], "one_worker_s": round(one, 1),
-                                      "two_workers_s": round(two, 1), "speedup": round(one / two, 2)}  # fmt: skip
+        results["evaluation_dask"] = {
+            "episodes": EVAL["episodes"],
+            "one_worker_s": round(one, 1),
+            "two_workers_s": round(two, 1),
+            "speedup": round(one / two, 2),
+        }
     return results
 
 
@@ -69,8 +73,9 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
     from dynplan.paths import PathArgument, PathKind
 
     parser = CommandParser(prog="python -m flows.bench_pipeline", description=__doc__)
-    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FILE), required=True,
-                        help="where to write the figures (JSON)")  # fmt: skip
+    parser.add_argument(
+        "--out", type=PathArgument(PathKind.OUTPUT_FILE), required=True, help="where to write the figures (JSON)"
+    )
     parser.add_argument("--no-quick", action="store_true", help="time the Dask evaluation only")
     args = parser.parse_args(argv)
     results = bench_pipeline(quick=not args.no_quick)

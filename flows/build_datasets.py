@@ -43,8 +43,12 @@ def inspect_log_task(path: str, world_name: str = DEFAULT_WORLD) -> LogInfo:
 
 
 @flow(name="build-datasets", log_prints=True)
-def build_datasets(log_dir: str = "datasets/logs", out: str = "datasets/frames.zarr",
-                   dask_address: str | None = None, world_name: str = DEFAULT_WORLD) -> dict:  # fmt: skip
+def build_datasets(
+    log_dir: str = "datasets/logs",
+    out: str = "datasets/frames.zarr",
+    dask_address: str | None = None,
+    world_name: str = DEFAULT_WORLD,
+) -> dict:
     """Append every new log of the world `world_name` in `log_dir` to the frames store `out`."""
     logs = [str(p) for p in list_logs(log_dir)]
     futures = inspect_log_task.map(logs, world_name=unmapped(world_name))
@@ -55,8 +59,10 @@ def build_datasets(log_dir: str = "datasets/logs", out: str = "datasets/frames.z
         print(f"repaired: {line}")
     for reason in report.failed.values():
         print(f"skipped: {reason}")
-    print(f"{out}: {len(report.added)} added, {len(report.skipped)} already in, {len(report.failed)} failed; "
-          f"{report.episodes} episodes")  # fmt: skip
+    print(
+        f"{out}: {len(report.added)} added, {len(report.skipped)} already in, {len(report.failed)} failed; "
+        f"{report.episodes} episodes"
+    )
     return report.to_dict()
 
 
@@ -66,32 +72,59 @@ def verify(store: str, log_dir: str | None, as_json: bool) -> dict:
     for damage in report.damage:
         print(f"{store}: {damage.describe()}", file=sys.stderr)
     repaired = len(report.damage) - len(report.unrepaired)
-    print(f"{store}: {report.chunks} chunks of {report.episodes} episodes checked; {len(report.damage)} damaged, "
-          f"{repaired} repaired")  # fmt: skip
+    print(
+        f"{store}: {report.chunks} chunks of {report.episodes} episodes checked; {len(report.damage)} damaged, "
+        f"{repaired} repaired"
+    )
     if as_json:
         print(json.dumps(report.to_dict()))
     if report.unrepaired:
         hint = "" if log_dir else "; give the folder of its logs to repair what they determine"
-        print(f"python -m flows.build_datasets: {len(report.unrepaired)} damaged chunks or metadata remain in "
-              f"{store}{hint}", file=sys.stderr)  # fmt: skip
+        print(
+            f"python -m flows.build_datasets: {len(report.unrepaired)} damaged chunks or metadata remain in "
+            f"{store}{hint}",
+            file=sys.stderr,
+        )
         raise SystemExit(1)
     return report.to_dict()
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = CommandParser(prog="python -m flows.build_datasets", description=__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("log_dir", nargs="?", type=PathArgument(PathKind.LOG_FOLDER),
-                        help="folder of episode logs (*.mcap); with --verify, optional")  # fmt: skip
-    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/frames.zarr",
-                        help="Zarr store to create or extend")  # fmt: skip
-    parser.add_argument("--verify", metavar="STORE", type=PathArgument(PathKind.STORE),
-                        help="check every chunk of STORE (and repair it from LOG_DIR)")  # fmt: skip
-    parser.add_argument("--world", choices=world_names(), default=None,
-                        help=f"the world of the store's logs (default: the store's, else {DEFAULT_WORLD})")  # fmt: skip
+def _parser() -> CommandParser:
+    parser = CommandParser(
+        prog="python -m flows.build_datasets", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "log_dir",
+        nargs="?",
+        type=PathArgument(PathKind.LOG_FOLDER),
+        help="folder of episode logs (*.mcap); with --verify, optional",
+    )
+    parser.add_argument(
+        "--out",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        default="datasets/frames.zarr",
+        help="Zarr store to create or extend",
+    )
+    parser.add_argument(
+        "--verify",
+        metavar="STORE",
+        type=PathArgument(PathKind.STORE),
+        help="check every chunk of STORE (and repair it from LOG_DIR)",
+    )
+    parser.add_argument(
+        "--world",
+        choices=world_names(),
+        default=None,
+        help=f"the world of the store's logs (default: the store's, else {DEFAULT_WORLD})",
+    )
     add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
     add_debug_option(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = _parser()
     args = parser.parse_args(argv)
     try:
         address = checked_dask_address(args.dask_address) if args.verify is None else None
@@ -123,8 +156,11 @@ def main(argv: list[str] | None = None) -> dict:
     if report["failed"]:
         for path, reason in sorted(report["failed"].items()):
             print(f"python -m flows.build_datasets: failed {path}: {reason}", file=sys.stderr)
-        print(f"python -m flows.build_datasets: failed on {len(report['failed'])} of its inputs; the rest are in the "
-              "store", file=sys.stderr)  # fmt: skip
+        print(
+            f"python -m flows.build_datasets: failed on {len(report['failed'])} of its inputs; the rest are in the "
+            "store",
+            file=sys.stderr,
+        )
         raise SystemExit(1)
     return report
 

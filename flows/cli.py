@@ -59,16 +59,18 @@ def _wait_until_healthy(server: subprocess.Popen, url: str, log: IO[bytes]) -> N
     with httpx.Client() as client:
         while True:
             if server.poll() is not None:
-                raise RuntimeError(f"the temporary Prefect API server exited with status {server.returncode}"
-                                   f"{_last_line(log)}")  # fmt: skip
+                raise RuntimeError(
+                    f"the temporary Prefect API server exited with status {server.returncode}{_last_line(log)}"
+                )
             try:
                 if client.get(f"{url}/health", timeout=2).status_code == 200:
                     return
             except httpx.HTTPError:
                 pass
             if time.monotonic() > deadline:
-                raise RuntimeError(f"the temporary Prefect API server did not answer within {STARTUP_TIMEOUT_S} s"
-                                   f"{_last_line(log)}")  # fmt: skip
+                raise RuntimeError(
+                    f"the temporary Prefect API server did not answer within {STARTUP_TIMEOUT_S} s{_last_line(log)}"
+                )
             time.sleep(0.1)
 
 
@@ -83,14 +85,34 @@ def temporary_api() -> Iterator[str | None]:
         return
     port = _free_port()
     url = f"http://127.0.0.1:{port}/api"
-    env = {**os.environ, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1",
-           **get_current_settings().to_environment_variables(exclude_unset=True)}  # fmt: skip
-    command = [sys.executable, "-m", "uvicorn", "--app-dir", str(Path(prefect.__file__).parent.parent), "--factory",
-               "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port", str(port),
-               "--log-level", "error", "--lifespan", "on"]  # fmt: skip
+    env = {
+        **os.environ,
+        "PREFECT_UI_ENABLED": "0",
+        "PREFECT__SERVER_EPHEMERAL": "1",
+        "PREFECT__SERVER_FINAL": "1",
+        **get_current_settings().to_environment_variables(exclude_unset=True),
+    }
+    command = [
+        sys.executable,
+        "-m",
+        "uvicorn",
+        "--app-dir",
+        str(Path(prefect.__file__).parent.parent),
+        "--factory",
+        "prefect.server.api.server:create_app",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--log-level",
+        "error",
+        "--lifespan",
+        "on",
+    ]
     with tempfile.TemporaryFile() as log:
-        server = subprocess.Popen(command, env=env, preexec_fn=die_with_parent, stdin=subprocess.DEVNULL,
-                                  stdout=log, stderr=log)  # fmt: skip
+        server = subprocess.Popen(
+            command, env=env, preexec_fn=die_with_parent, stdin=subprocess.DEVNULL, stdout=log, stderr=log
+        )
         try:
             _wait_until_healthy(server, url, log)
             with temporary_settings(updates={PREFECT_API_URL: url, PREFECT_UI_URL: ""}):  # the server has no UI

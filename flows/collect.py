@@ -29,14 +29,21 @@ DEFAULT_EPISODES = 10
 
 
 @task(name="record-episode", cache_policy=NO_CACHE)
-def record_episode_task(out: str, seed: int, config: dict, n_frames: int | None = None,
-                        world_name: str = DEFAULT_WORLD) -> dict:  # fmt: skip
+def record_episode_task(
+    out: str, seed: int, config: dict, n_frames: int | None = None, world_name: str = DEFAULT_WORLD
+) -> dict:
     return record_episode(out, seed, config, n_frames, world_name).to_dict()
 
 
 @flow(name="collect-episodes", log_prints=True)
-def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int = 0, config: dict | None = None,
-                     n_frames: int | None = None, world_name: str = DEFAULT_WORLD) -> dict:  # fmt: skip
+def collect_episodes(
+    out: str = "datasets/logs",
+    episodes: int = 10,
+    seed: int = 0,
+    config: dict | None = None,
+    n_frames: int | None = None,
+    world_name: str = DEFAULT_WORLD,
+) -> dict:
     """Record episodes seed … seed+episodes−1 of the world `world_name` under `config` into `out`."""
     plan, entry = CollectPlan(episodes=episodes, seed=seed), world(world_name)
     recording = entry.config(config) if config else entry.recording
@@ -45,8 +52,13 @@ def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int =
     for leftover in stale_temporaries(out):
         leftover.unlink(missing_ok=True)
     seeds = plan.seeds
-    futures = record_episode_task.map(out, seeds, config=unmapped(recording.model_dump()), n_frames=unmapped(n_frames),
-                                      world_name=unmapped(entry.name))  # fmt: skip
+    futures = record_episode_task.map(
+        out,
+        seeds,
+        config=unmapped(recording.model_dump()),
+        n_frames=unmapped(n_frames),
+        world_name=unmapped(entry.name),
+    )
     results = [f.result() for f in progress(as_completed(futures), total=len(futures), description="collect")]
     counts = Counter(r["status"] for r in results)
     print(f"{out}: {counts['written']} written, {counts['rewritten']} rewritten, {counts['skipped']} already complete")
@@ -55,16 +67,32 @@ def collect_episodes(out: str = "datasets/logs", episodes: int = 10, seed: int =
 
 def main(argv: list[str] | None = None) -> dict:
     parser = CommandParser(prog="python -m flows.collect", description=__doc__)
-    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD,
-                        help=f"the world to record (default {DEFAULT_WORLD})")  # fmt: skip
-    parser.add_argument("--episodes", type=bounded(CollectPlan, "episodes"), default=None,
-                        help=field_help(CollectPlan, "episodes", "10, or the world's episodes from --seed on if fewer "
-                                        "(a world of 8 episodes: its 8)"))  # fmt: skip
+    parser.add_argument(
+        "--world", choices=world_names(), default=DEFAULT_WORLD, help=f"the world to record (default {DEFAULT_WORLD})"
+    )
+    parser.add_argument(
+        "--episodes",
+        type=bounded(CollectPlan, "episodes"),
+        default=None,
+        help=field_help(
+            CollectPlan,
+            "episodes",
+            "10, or the world's episodes from --seed on if fewer (a world of 8 episodes: its 8)",
+        ),
+    )
     parser.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=0, help=field_help(CollectPlan, "seed"))
-    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/logs",
-                        help="folder for the logs (default datasets/logs)")  # fmt: skip
-    parser.add_argument("--level", type=bounded(RoadConfig, "level"), default=None,
-                        help=field_help(RoadConfig, "level", str(RoadConfig().level)) + "; the road's")  # fmt: skip
+    parser.add_argument(
+        "--out",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        default="datasets/logs",
+        help="folder for the logs (default datasets/logs)",
+    )
+    parser.add_argument(
+        "--level",
+        type=bounded(RoadConfig, "level"),
+        default=None,
+        help=field_help(RoadConfig, "level", str(RoadConfig().level)) + "; the road's",
+    )
     parser.add_argument(
         "--agent-speed",
         type=bounded(RoadConfig, "agent_speed"),

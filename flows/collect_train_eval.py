@@ -102,8 +102,9 @@ def world_model_task(preset: dict, model: str, store: str, work: str) -> list[di
         records.append({"name": f"pixelcnn [{model}]", "wall_s": 0.0, "detail": "committed weights"})
     else:  # the prior trains on the store encoded by this tokenizer
         codes = build_codes_task(store, vqvae, model)
-        records.append({"name": f"vqvae [{model}]", "wall_s": time.perf_counter() - start,
-                        "detail": detail + "; store encoded"})  # fmt: skip
+        records.append(
+            {"name": f"vqvae [{model}]", "wall_s": time.perf_counter() - start, "detail": detail + "; store encoded"}
+        )
         px_config, px_budget = plan.pixelcnn_config(model).model_dump(), plan.pixelcnn_plan(model).budget.model_dump()
         px_config["codebook_size"] = checkpoints.load(vqvae, "vqvae")["config"]["codebook_size"]  # K follows it
         cached = _trained(pixelcnn_run_dir(store, codes, out, px_config, px_budget), "pixelcnn", px_budget["epochs"])
@@ -116,8 +117,9 @@ def world_model_task(preset: dict, model: str, store: str, work: str) -> list[di
     return records
 
 
-def _write_report(plan: PipelinePreset, work: Path, command: str, results: list[str],
-                  records: list[StageRecord]) -> str:  # fmt: skip
+def _write_report(
+    plan: PipelinePreset, work: Path, command: str, results: list[str], records: list[StageRecord]
+) -> str:
     """The report's Markdown and HTML (the world's `results` section, then stages and checkpoints), its artifact
     and the stages' timings; returns the Markdown's path."""
     models = {m: work / "models" / m for m in plan.models}
@@ -137,9 +139,15 @@ def report_task(preset: dict, work: str, eval_logs: str, command: str, stages: l
     start = time.perf_counter()
     figures = None
     if plan.learned_techniques:
-        figures = draw_figures(work_dir / "report", {m: work_dir / "models" / m for m in plan.models},
-                               Path(eval_logs), EVAL_SEED_START, plan.evaluation.rollout_steps[0],
-                               plan.report_episodes, plan.learned_techniques[0])  # fmt: skip
+        figures = draw_figures(
+            work_dir / "report",
+            {m: work_dir / "models" / m for m in plan.models},
+            Path(eval_logs),
+            EVAL_SEED_START,
+            plan.evaluation.rollout_steps[0],
+            plan.report_episodes,
+            plan.learned_techniques[0],
+        )
     records = [StageRecord(**s) for s in stages]
     records.append(StageRecord("report", time.perf_counter() - start, "figures, GIF, Markdown and HTML"))
     rows = aggregate(load_results(work_dir / "results")) if (work_dir / "results").exists() else []
@@ -160,12 +168,22 @@ def world_report_task(preset: dict, work: str, results: str, command: str, stage
 def _evaluate_road(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
     """Table 1's cases over the recorded evaluation episodes, then the road's report; (report, evaluation detail)."""
     e, eval_logs = plan.evaluation, Path(out) / "eval_logs"
-    cases = CasePlan(techniques=e.techniques, models=plan.models, agent_speeds=e.agent_speeds,
-                     rollout_steps=e.rollout_steps, episodes=e.episodes)  # fmt: skip
+    cases = CasePlan(
+        techniques=e.techniques,
+        models=plan.models,
+        agent_speeds=e.agent_speeds,
+        rollout_steps=e.rollout_steps,
+        episodes=e.episodes,
+    )
     agent = AgentSpec(playouts=e.playouts, model_dir=str(work / "models"))
     rows = evaluate_planner.with_options(task_runner=runner)(
-        plan=cases, agent=agent, log_dir=str(eval_logs), results_dir=str(work / "results"), command=command,
-        artifacts=plan.folder)  # fmt: skip
+        plan=cases,
+        agent=agent,
+        log_dir=str(eval_logs),
+        results_dir=str(work / "results"),
+        command=command,
+        artifacts=plan.folder,
+    )
     return str(eval_logs), f"{len(rows)} table rows"
 
 
@@ -186,8 +204,13 @@ def _stages(world_name: str) -> tuple:
 
 
 @flow(name="collect-train-eval", log_prints=True)
-def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_address: str | None = None,
-                       command: str | None = None, world: str = DEFAULT_WORLD) -> str:  # fmt: skip
+def collect_train_eval(
+    preset: str = "quick",
+    out: str = "datasets",
+    dask_address: str | None = None,
+    command: str | None = None,
+    world: str = DEFAULT_WORLD,
+) -> str:
     """Collect → build datasets → train both world-model stages → evaluate → report, each stage cached; returns
     the report's path."""
     plan = pipeline_preset(preset, world)
@@ -204,12 +227,20 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
         stages.append({"name": name, "wall_s": time.perf_counter() - start, "detail": detail(result)})
         return result
 
-    timed("collect", lambda: collect_episodes.with_options(task_runner=runner)(
-        out=str(work / "logs"), episodes=plan.train_episodes, seed=0, world_name=plan.world),
-        lambda r: f"{len(r['seeds'])} episodes, {r['written'] + r['rewritten']} recorded now")  # fmt: skip
-    timed("build datasets", lambda: build_datasets.with_options(task_runner=runner)(
-        log_dir=str(work / "logs"), out=store, dask_address=dask_address, world_name=plan.world),
-        lambda r: f"{r['episodes']} episodes: {len(r['added'])} added")  # fmt: skip
+    timed(
+        "collect",
+        lambda: collect_episodes.with_options(task_runner=runner)(
+            out=str(work / "logs"), episodes=plan.train_episodes, seed=0, world_name=plan.world
+        ),
+        lambda r: f"{len(r['seeds'])} episodes, {r['written'] + r['rewritten']} recorded now",
+    )
+    timed(
+        "build datasets",
+        lambda: build_datasets.with_options(task_runner=runner)(
+            log_dir=str(work / "logs"), out=store, dask_address=dask_address, world_name=plan.world
+        ),
+        lambda r: f"{r['episodes']} episodes: {len(r['added'])} added",
+    )
     for model in plan.models:
         stages += world_model_task(plan.model_dump(mode="json"), model, store, str(work))
     evaluate, report_of = _stages(plan.world)
@@ -220,14 +251,19 @@ def collect_train_eval(preset: str = "quick", out: str = "datasets", dask_addres
 
 
 def main(argv: list[str] | None = None) -> str:
-    parser = CommandParser(prog="python -m flows.collect_train_eval", description=__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(
+        prog="python -m flows.collect_train_eval",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD, help="the world (default road)")
     names = sorted({name for w in world_names() for name in pipeline_presets(w)})
-    parser.add_argument("--preset", default="quick", choices=names,
-                        help="run scale (each world has its own quick, full and smoke)")  # fmt: skip
-    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets",
-                        help="output folder (default: datasets)")  # fmt: skip
+    parser.add_argument(
+        "--preset", default="quick", choices=names, help="run scale (each world has its own quick, full and smoke)"
+    )
+    parser.add_argument(
+        "--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets", help="output folder (default: datasets)"
+    )
     add_dask_option(parser)
     add_debug_option(parser)
     args = parser.parse_args(argv)
@@ -237,8 +273,9 @@ def main(argv: list[str] | None = None) -> str:
     except (ConfigError, ValueError) as error:
         parser.error(str(error))
     command = shlex.join(["python", "-m", "flows.collect_train_eval", *(sys.argv[1:] if argv is None else argv)])
-    report = collect_train_eval(preset=args.preset, out=args.out, dask_address=address, command=command,
-                                world=args.world)  # fmt: skip
+    report = collect_train_eval(
+        preset=args.preset, out=args.out, dask_address=address, command=command, world=args.world
+    )
     print(json.dumps({"report": report}))
     return report
 

@@ -92,10 +92,16 @@ def batches(todo: list[Case], size: int) -> list[list[Case]]:
 
 
 @flow(name="evaluate-planner", log_prints=True)
-def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = None,
-                     log_dir: str = "datasets/eval_logs", results_dir: str = RESULTS_DIR, run: str = EVALUATION_RUN,
-                     command: str = DEFAULT_COMMAND, batch: int = BATCH,
-                     artifacts: str | None = None) -> list[dict]:  # fmt: skip
+def evaluate_planner(
+    plan: CasePlan | None = None,
+    agent: AgentSpec | None = None,
+    log_dir: str = "datasets/eval_logs",
+    results_dir: str = RESULTS_DIR,
+    run: str = EVALUATION_RUN,
+    command: str = DEFAULT_COMMAND,
+    batch: int = BATCH,
+    artifacts: str | None = None,
+) -> list[dict]:
     """Play the cases of `plan` that `run` lacks with the agents' settings `agent` (playouts, weights — the
     committed ones, or a pipeline's own under `agent.model_dir` — caution overrides, device), in lockstep batches of
     up to `batch` recorded worlds (one Prefect task each; see `batches`), and write the aggregated table. Publishes
@@ -109,8 +115,13 @@ def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = Non
     todo = pending(all_cases, store_run, log_dir, agent)
     work = batches(todo, batch)
     print(f"{len(todo)} episodes to play into {store_run.dir}, in {len(work)} lockstep batches")
-    futures = evaluate_cases_task.map([[asdict(c) for c in b] for b in work], unmapped(log_dir), unmapped(results_dir),
-                                      unmapped(run), unmapped(agent.model_dump()))  # fmt: skip
+    futures = evaluate_cases_task.map(
+        [[asdict(c) for c in b] for b in work],
+        unmapped(log_dir),
+        unmapped(results_dir),
+        unmapped(run),
+        unmapped(agent.model_dump()),
+    )
     role = store_run.manifest()["role"]
     played = ProgressArtifact(f"episodes played into run {run!r}", len(todo))
     sizes = {future.task_run_id: len(b) for future, b in zip(futures, work, strict=True)}
@@ -130,64 +141,132 @@ def evaluate_planner(plan: CasePlan | None = None, agent: AgentSpec | None = Non
 
 def _parser() -> argparse.ArgumentParser:
     parser = CommandParser(prog="python -m flows.evaluate", description=__doc__)
-    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD,
-                        help="the world (default road; `--world W --help` lists another world's options)")  # fmt: skip
-    parser.add_argument("--techniques", nargs="+", default=["oracle", "zero", "random"], choices=list(TECHNIQUES),
-                        metavar="TECHNIQUE", help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items())
-                        + " (default: oracle zero random)")  # fmt: skip
-    parser.add_argument("--models", nargs="+", default=["default"], choices=road_models(),
-                        help="world-model configurations for the learned techniques ("
-                        + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model) + ")")  # fmt: skip
-    parser.add_argument("--agent-speeds", nargs="+", type=float, choices=AGENT_SPEEDS, default=list(AGENT_SPEEDS),
-                        help=field_help(CasePlan, "agent_speeds", " ".join(map(str, AGENT_SPEEDS))))  # fmt: skip
-    parser.add_argument("--rollout-steps", nargs="+", type=bounded(AgentSpec, "rollout_steps"),
-                        default=list(ROLLOUT_STEPS),
-                        help=field_help(CasePlan, "rollout_steps", " ".join(map(str, ROLLOUT_STEPS))))  # fmt: skip
-    for name, flag in (("episodes", "--episodes"), ("first_seed", "--first-seed")):
-        default = CasePlan.model_fields[name].default
-        parser.add_argument(flag, type=bounded(CasePlan, name), default=default, help=field_help(CasePlan, name))
-    parser.add_argument("--playouts", type=bounded(AgentSpec, "playouts"), default=100,
-                        help=field_help(AgentSpec, "playouts"))  # fmt: skip
-    parser.add_argument("--log-dir", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/eval_logs",
-                        help="evaluation logs (recorded if missing)")  # fmt: skip
-    parser.add_argument("--results-dir", type=PathArgument(PathKind.OUTPUT_FOLDER), default=RESULTS_DIR,
-                        help="the results store (runs and Table 1)")  # fmt: skip
-    parser.add_argument("--run", default=EVALUATION_RUN, help=f"the run to play into (default {EVALUATION_RUN!r}, "
-                        "Table 1's; name another for validation or a candidate)")  # fmt: skip
-    add_dask_option(parser)
     parser.add_argument(
-        "--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), help=field_help(AgentSpec, "model_dir")
+        "--world",
+        choices=world_names(),
+        default=DEFAULT_WORLD,
+        help="the world (default road; `--world W --help` lists another world's options)",
     )
-    for name in Caution.model_fields:  # the caution's fields, types, ranges and words
-        own = "each configuration's own"
-        parser.add_argument(f"--{name}", type=bounded(Caution, name), help=field_help(Caution, name, own))
-    parser.add_argument("--workers", type=Bounded(int, 1, 256),
-                        help="batches played at once locally, in [1, 256] (default: one per core)")  # fmt: skip
-    parser.add_argument("--batch", type=Bounded(int, 1, 10_000), default=BATCH,
-                        help=f"recorded worlds per lockstep batch, in [1, 10000] (default {BATCH})")  # fmt: skip
-    parser.add_argument("--table1", action="store_true", help="play the complete Table 1: "
-                        + "; ".join(f"{speed * 2:g}x: {' '.join(names)}" for speed, names in TABLE1.items())
-                        + f" (learned ones with {' and '.join(road_models())}); instead of --techniques, --models "
-                        "and --agent-speeds")  # fmt: skip
+    parser.add_argument(
+        "--techniques",
+        nargs="+",
+        default=["oracle", "zero", "random"],
+        choices=list(TECHNIQUES),
+        metavar="TECHNIQUE",
+        help="; ".join(f"{n}: {t.description}" for n, t in TECHNIQUES.items()) + " (default: oracle zero random)",
+    )
+    parser.add_argument(
+        "--models",
+        nargs="+",
+        default=["default"],
+        choices=road_models(),
+        help="world-model configurations for the learned techniques ("
+        + ", ".join(n for n, t in TECHNIQUES.items() if t.world_model)
+        + ")",
+    )
+    parser.add_argument(
+        "--agent-speeds",
+        nargs="+",
+        type=float,
+        choices=AGENT_SPEEDS,
+        default=list(AGENT_SPEEDS),
+        help=field_help(CasePlan, "agent_speeds", " ".join(map(str, AGENT_SPEEDS))),
+    )
+    parser.add_argument(
+        "--rollout-steps",
+        nargs="+",
+        type=bounded(AgentSpec, "rollout_steps"),
+        default=list(ROLLOUT_STEPS),
+        help=field_help(CasePlan, "rollout_steps", " ".join(map(str, ROLLOUT_STEPS))),
+    )
+    _add_agent_options(parser)
+    _add_store_options(parser)
+    parser.add_argument(
+        "--table1",
+        action="store_true",
+        help="play the complete Table 1: "
+        + "; ".join(f"{speed * 2:g}x: {' '.join(names)}" for speed, names in TABLE1.items())
+        + f" (learned ones with {' and '.join(road_models())}); instead of --techniques, --models "
+        "and --agent-speeds",
+    )
     parser.add_argument("--device", default="cpu", help=field_help(AgentSpec, "device"))
     parser.add_argument("--json", action="store_true", help="print the table rows as JSON")
     add_debug_option(parser)
     return parser
 
 
+def _add_agent_options(parser: argparse.ArgumentParser) -> None:
+    """The episodes played and the agents' search settings."""
+    for name, flag in (("episodes", "--episodes"), ("first_seed", "--first-seed")):
+        default = CasePlan.model_fields[name].default
+        parser.add_argument(flag, type=bounded(CasePlan, name), default=default, help=field_help(CasePlan, name))
+    parser.add_argument(
+        "--playouts", type=bounded(AgentSpec, "playouts"), default=100, help=field_help(AgentSpec, "playouts")
+    )
+    parser.add_argument(
+        "--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), help=field_help(AgentSpec, "model_dir")
+    )
+    for name in Caution.model_fields:  # the caution's fields, types, ranges and words
+        own = "each configuration's own"
+        parser.add_argument(f"--{name}", type=bounded(Caution, name), help=field_help(Caution, name, own))
+
+
+def _add_store_options(parser: argparse.ArgumentParser) -> None:
+    """Where the logs and results go, and how the batches are played."""
+    parser.add_argument(
+        "--log-dir",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        default="datasets/eval_logs",
+        help="evaluation logs (recorded if missing)",
+    )
+    parser.add_argument(
+        "--results-dir",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        default=RESULTS_DIR,
+        help="the results store (runs and Table 1)",
+    )
+    parser.add_argument(
+        "--run",
+        default=EVALUATION_RUN,
+        help=f"the run to play into (default {EVALUATION_RUN!r}, "
+        "Table 1's; name another for validation or a candidate)",
+    )
+    add_dask_option(parser)
+    parser.add_argument(
+        "--workers",
+        type=Bounded(int, 1, 256),
+        help="batches played at once locally, in [1, 256] (default: one per core)",
+    )
+    parser.add_argument(
+        "--batch",
+        type=Bounded(int, 1, 10_000),
+        default=BATCH,
+        help=f"recorded worlds per lockstep batch, in [1, 10000] (default {BATCH})",
+    )
+
+
 def _specs(parser: argparse.ArgumentParser, args: argparse.Namespace) -> tuple[CasePlan, AgentSpec]:
     """The plan and the agents' settings, every value checked by their configs before any flow machinery starts
     (a bad one exits with one line); each learned agent's weights are loaded once to check them."""
     if args.table1:
-        given = [f"--{name.replace('_', '-')}" for name in ("techniques", "models", "agent_speeds")
-                 if getattr(args, name) != parser.get_default(name)]  # fmt: skip
+        given = [
+            f"--{name.replace('_', '-')}"
+            for name in ("techniques", "models", "agent_speeds")
+            if getattr(args, name) != parser.get_default(name)
+        ]
         if given:
             parser.error(f"--table1 plays the table's own techniques, models and speeds; drop {' '.join(given)}")
     overrides = {name: value for name in Caution.model_fields if (value := getattr(args, name)) is not None}
     try:
-        plan = CasePlan(techniques=args.techniques, models=args.models, agent_speeds=args.agent_speeds,
-                        rollout_steps=args.rollout_steps, episodes=args.episodes, first_seed=args.first_seed,
-                        table1=args.table1)  # fmt: skip
+        plan = CasePlan(
+            techniques=args.techniques,
+            models=args.models,
+            agent_speeds=args.agent_speeds,
+            rollout_steps=args.rollout_steps,
+            episodes=args.episodes,
+            first_seed=args.first_seed,
+            table1=args.table1,
+        )
         Caution(**overrides)  # its ranges, named as the caution's
         agent = AgentSpec(playouts=args.playouts, model_dir=args.model_dir, caution=overrides, device=args.device)
         agents = [agent.for_case(t, m, None, 0) for t, m in plan.pairs()]  # each technique and configuration
@@ -213,8 +292,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     except StoreError as error:
         parser.error(f"--run: {error}")
     if args.first_seed != EVAL_SEED_START and args.run == EVALUATION_RUN:
-        parser.error(f"--first-seed={args.first_seed} needs its own --run: the run {EVALUATION_RUN!r} holds the "
-                     f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts")  # fmt: skip
+        parser.error(
+            f"--first-seed={args.first_seed} needs its own --run: the run {EVALUATION_RUN!r} holds the "
+            f"evaluation's results (seeds {EVAL_SEED_START:,} …), all of which Table 1 counts"
+        )
     try:
         check_output(args.log_dir, "--log-dir", "folder")
         check_output(args.results_dir, "--results-dir", "folder", inputs=(args.log_dir,))

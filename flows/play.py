@@ -56,8 +56,20 @@ from flows.window import PanelWindow, checked_window_options
 from flows.worlds import own_command, play_main
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
-MOVE_KEYS = {"w": 90, "e": 45, "d": 0, "c": -45, "x": -90, "z": -135, "a": 180, "q": 135,
-             "up": 90, "right": 0, "down": -90, "left": 180}  # fmt: skip
+MOVE_KEYS = {
+    "w": 90,
+    "e": 45,
+    "d": 0,
+    "c": -45,
+    "x": -90,
+    "z": -135,
+    "a": 180,
+    "q": 135,
+    "up": 90,
+    "right": 0,
+    "down": -90,
+    "left": 180,
+}
 
 
 def action_of(heading: int) -> int:
@@ -66,8 +78,15 @@ def action_of(heading: int) -> int:
     return int(np.flatnonzero(angle == ACTION_ANGLES_DEG)[0])
 
 
-def build_state(seed: int | None = None, log: str | None = None, agent_speed: float = 1.0, model: str = "default",
-                technique_name: str = "oracle", k: int = 3, imagination: bool = True) -> PlayState:  # fmt: skip
+def build_state(
+    seed: int | None = None,
+    log: str | None = None,
+    agent_speed: float = 1.0,
+    model: str = "default",
+    technique_name: str = "oracle",
+    k: int = 3,
+    imagination: bool = True,
+) -> PlayState:
     """The state of the world of `seed` or of the recorded `log`: the imagination from the learned world model
     `model` (its mid-point frames, no caution: the frames as the model predicts them), the planner of
     `technique_name` at horizon k."""
@@ -102,12 +121,17 @@ class Window(PanelWindow):
             self.blit(error_image(s.true_frame, s.frame), 2, "imagined vs true (red: missed, blue: extra)")
         elif s.last_prediction is not None and planner_plays:
             ahead = s.last_prediction.frames
-            self.blit(error_image(s.world.frames[min(s.t + len(ahead) - 1, len(s.world.frames) - 1)], ahead[-1]),
-                       2, f"predicted t + {len(ahead)} vs true")  # fmt: skip
+            self.blit(
+                error_image(s.world.frames[min(s.t + len(ahead) - 1, len(s.world.frames) - 1)], ahead[-1]),
+                2,
+                f"predicted t + {len(ahead)} vs true",
+            )
         who = ("planner plays" + (" (paused)" if paused else "")) if planner_plays else "you play"
-        lines = [f"t = {s.t}   {who}   k = {s.k}   outcome: {s.outcome}",
-                 "move: W E D C X Z A Q or arrows   I: imagination   K: horizon   P: planner/you   SPACE: pause",
-                 "R: restart   ESC: quit"]  # fmt: skip
+        lines = [
+            f"t = {s.t}   {who}   k = {s.k}   outcome: {s.outcome}",
+            "move: W E D C X Z A Q or arrows   I: imagination   K: horizon   P: planner/you   SPACE: pause",
+            "R: restart   ESC: quit",
+        ]
         self.text(lines)
         self.pygame.display.flip()
 
@@ -122,9 +146,36 @@ def publish(live: LiveView, state: PlayState) -> None:
     live.show(t, state.frame, state.world.goal[t], state.position, decision, imagined, step)
 
 
-def play(state: PlayState, scale: int = 8, fps: float = 8.0, planner_plays: bool = False,
-         script: Iterable[str] | None = None, record: str | None = None, live: LiveView | None = None,
-         screenshot: str | None = None) -> PlayState:  # fmt: skip
+def _on_key(state: PlayState, name: str, modes: tuple[bool, bool], live: LiveView | None) -> tuple[bool, bool]:
+    """One key press: its effect on the state; `modes` and the result are (planner_plays, paused)."""
+    planner_plays, paused = modes
+    if name == "r":
+        state.reset()
+    elif name == "i" and state.imagination is not None:
+        state.toggle_imagination()
+    elif name == "k":
+        state.cycle_horizon()
+    elif name == "p":
+        planner_plays = not planner_plays
+    elif name == "space":
+        paused = not paused
+    elif name in MOVE_KEYS and state.running and not planner_plays:
+        state.step(action_of(MOVE_KEYS[name]))
+        if live is not None:
+            publish(live, state)
+    return planner_plays, paused
+
+
+def play(
+    state: PlayState,
+    scale: int = 8,
+    fps: float = 8.0,
+    planner_plays: bool = False,
+    script: Iterable[str] | None = None,
+    record: str | None = None,
+    live: LiveView | None = None,
+    screenshot: str | None = None,
+) -> PlayState:
     """Run the window until ESC or the window closes. `script`: key names fed in as real key events, one per frame
     (then the window quits) — how the tests play it headless. `live`: also publish every step there;
     `screenshot`: save the window's last picture there (PNG)."""
@@ -138,29 +189,11 @@ def play(state: PlayState, scale: int = 8, fps: float = 8.0, planner_plays: bool
                 if not keys:
                     break
                 pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.key.key_code(keys.pop(0))))
-            quit_now = False
-            for event in pygame.event.get():
-                if event.type == pygame.QUIT:
-                    quit_now = True
-                elif event.type == pygame.KEYDOWN:
-                    name = pygame.key.name(event.key)
-                    if name == "escape":
-                        quit_now = True
-                    elif name == "r":
-                        state.reset()
-                    elif name == "i" and state.imagination is not None:
-                        state.toggle_imagination()
-                    elif name == "k":
-                        state.cycle_horizon()
-                    elif name == "p":
-                        planner_plays = not planner_plays
-                    elif name == "space":
-                        paused = not paused
-                    elif name in MOVE_KEYS and state.running and not planner_plays:
-                        state.step(action_of(MOVE_KEYS[name]))
-                        if live is not None:
-                            publish(live, state)
-            if quit_now:
+            events = pygame.event.get()
+            names = [pygame.key.name(e.key) for e in events if e.type == pygame.KEYDOWN]
+            for name in names:
+                planner_plays, paused = _on_key(state, name, (planner_plays, paused), live)
+            if any(e.type == pygame.QUIT for e in events) or "escape" in names:
                 break
             if planner_plays and not paused and state.running:
                 state.step(state.planner_action())
@@ -179,38 +212,79 @@ def play(state: PlayState, scale: int = 8, fps: float = 8.0, planner_plays: bool
 
 
 def _parser() -> CommandParser:
-    parser = CommandParser(prog="python -m flows.play", description=__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--world", choices=world_names(), default=DEFAULT_WORLD,
-                        help="the world (default road; `--world W --help` lists another world's options)")  # fmt: skip
+    parser = CommandParser(
+        prog="python -m flows.play", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--world",
+        choices=world_names(),
+        default=DEFAULT_WORLD,
+        help="the world (default road; `--world W --help` lists another world's options)",
+    )
     source = parser.add_mutually_exclusive_group()
-    source.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=None,
-                        help="play the world of this seed (default 2,000,000)")  # fmt: skip
-    source.add_argument("--log", type=PathArgument(PathKind.LOG), default=None,
-                        help="play the world recorded in this episode log (.mcap)")  # fmt: skip
-    parser.add_argument("--agent-speed", type=float, default=1.0, choices=AGENT_SPEEDS,
-                        help="1.0 is the 2x agent, 0.5 the 1x")  # fmt: skip
-    parser.add_argument("--model", default="default", choices=road_models(),
-                        help="the world model of the imagination and of a learned planner")  # fmt: skip
-    parser.add_argument("--technique", default="oracle", choices=[n for n, t in TECHNIQUES.items() if t.search],
-                        help="the planner that plays when you press P or pass --watch")  # fmt: skip
+    source.add_argument(
+        "--seed",
+        type=bounded(CollectPlan, "seed"),
+        default=None,
+        help="play the world of this seed (default 2,000,000)",
+    )
+    source.add_argument(
+        "--log",
+        type=PathArgument(PathKind.LOG),
+        default=None,
+        help="play the world recorded in this episode log (.mcap)",
+    )
+    parser.add_argument(
+        "--agent-speed", type=float, default=1.0, choices=AGENT_SPEEDS, help="1.0 is the 2x agent, 0.5 the 1x"
+    )
+    parser.add_argument(
+        "--model",
+        default="default",
+        choices=road_models(),
+        help="the world model of the imagination and of a learned planner",
+    )
+    parser.add_argument(
+        "--technique",
+        default="oracle",
+        choices=[n for n, t in TECHNIQUES.items() if t.search],
+        help="the planner that plays when you press P or pass --watch",
+    )
     parser.add_argument("--watch", action="store_true", help="start with the planner playing")
     parser.add_argument("-k", "--rollout-steps", type=int, default=3, choices=HORIZONS, help="the planner's horizon")
     parser.add_argument("--no-imagination", action="store_true", help="do not load a world model for the imagination")
-    parser.add_argument("--record", type=PathArgument(PathKind.OUTPUT_FILE), default=None,
-                        help="write what was played to this replay log (.mcap) at the end")  # fmt: skip
-    parser.add_argument("--scale", type=int, default=8, choices=range(1, 17), metavar="1..16", help="pixels per cell")
-    parser.add_argument("--fps", type=Bounded(float, 0.01, 1000.0), default=8.0,
-                        help="frames per second while the planner plays")  # fmt: skip
-    parser.add_argument("--live", action="store_true",
-                        help="also serve every step over the Foxglove WebSocket protocol (the live extra)")  # fmt: skip
-    parser.add_argument("--live-port", type=Bounded(int, 0, 65535), default=DEFAULT_PORT,
-                        help="the live view's port (0: any free one)")  # fmt: skip
-    parser.add_argument("--screenshot", type=PathArgument(PathKind.OUTPUT_FILE), default=None,
-                        help="save the window's last picture to this PNG at the end")  # fmt: skip
-    parser.add_argument("--script", default=None,
-                        help="key names separated by commas, one per frame, then quit (headless runs)")  # fmt: skip
+    parser.add_argument(
+        "--record",
+        type=PathArgument(PathKind.OUTPUT_FILE),
+        default=None,
+        help="write what was played to this replay log (.mcap) at the end",
+    )
+    _add_window_options(parser)
     return parser
+
+
+def _add_window_options(parser: argparse.ArgumentParser) -> None:
+    """The window, the live view and the headless script."""
+    parser.add_argument("--scale", type=int, default=8, choices=range(1, 17), metavar="1..16", help="pixels per cell")
+    parser.add_argument(
+        "--fps", type=Bounded(float, 0.01, 1000.0), default=8.0, help="frames per second while the planner plays"
+    )
+    parser.add_argument(
+        "--live",
+        action="store_true",
+        help="also serve every step over the Foxglove WebSocket protocol (the live extra)",
+    )
+    parser.add_argument(
+        "--live-port", type=Bounded(int, 0, 65535), default=DEFAULT_PORT, help="the live view's port (0: any free one)"
+    )
+    parser.add_argument(
+        "--screenshot",
+        type=PathArgument(PathKind.OUTPUT_FILE),
+        default=None,
+        help="save the window's last picture to this PNG at the end",
+    )
+    parser.add_argument(
+        "--script", default=None, help="key names separated by commas, one per frame, then quit (headless runs)"
+    )
 
 
 def main(argv: Sequence[str] | None = None) -> PlayState | WorldPlayState:
@@ -224,8 +298,15 @@ def main(argv: Sequence[str] | None = None) -> PlayState | WorldPlayState:
     inputs = () if args.log is None else (args.log,)
     script = checked_window_options(parser, args, inputs)
     try:
-        state = build_state(args.seed, args.log, args.agent_speed, args.model, args.technique, args.rollout_steps,
-                            not args.no_imagination)  # fmt: skip
+        state = build_state(
+            args.seed,
+            args.log,
+            args.agent_speed,
+            args.model,
+            args.technique,
+            args.rollout_steps,
+            not args.no_imagination,
+        )
     except (LogError, CheckpointError, ValueError) as error:
         parser.exit(2, f"python -m flows.play: error: {error}\n")
     if not args.live:

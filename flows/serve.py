@@ -44,10 +44,15 @@ def deployments(out: str, address: str | None, presets: list[str]) -> list:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = CommandParser(prog="python -m flows.serve", description=__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets",
-                        help="output folder of the runs (default: datasets)")  # fmt: skip
+    parser = CommandParser(
+        prog="python -m flows.serve", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--out",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        default="datasets",
+        help="output folder of the runs (default: datasets)",
+    )
     names = list(PRESETS_BY_DEPLOYMENT)
     parser.add_argument(
         "--presets", nargs="+", default=names, choices=names, help="the deployments to serve (default: all)"

@@ -80,20 +80,40 @@ def _board(tensorboard: str | None, run_dir: Path) -> Path | None:
 @task(name="train-vqvae", cache_key_fn=_vqvae_key, persist_result=True)
 def train_vqvae_task(store: str, out: str, config: dict, budget: dict, tensorboard: str | None = None) -> str:
     run_dir = vqvae_run_dir(store, out, config, budget)
-    shown = _show(("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used"), run_dir,
-                  budget["epochs"])  # fmt: skip
-    return str(train_vqvae(store, run_dir, VQVAEConfig(**config), TrainBudget(**budget), on_epoch=shown,
-                           tensorboard=_board(tensorboard, run_dir)))  # fmt: skip
+    shown = _show(
+        ("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used"), run_dir, budget["epochs"]
+    )
+    return str(
+        train_vqvae(
+            store,
+            run_dir,
+            VQVAEConfig(**config),
+            TrainBudget(**budget),
+            on_epoch=shown,
+            tensorboard=_board(tensorboard, run_dir),
+        )
+    )
 
 
 @task(name="train-pixelcnn", cache_key_fn=_pixelcnn_key, persist_result=True)
-def train_pixelcnn_task(store: str, codes: str, out: str, config: dict, budget: dict,
-                        tensorboard: str | None = None) -> str:  # fmt: skip
+def train_pixelcnn_task(
+    store: str, codes: str, out: str, config: dict, budget: dict, tensorboard: str | None = None
+) -> str:
     run_dir = pixelcnn_run_dir(store, codes, out, config, budget)
-    shown = _show(("epoch", "loss", "val_accuracy", "val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact"),
-                  run_dir, budget["epochs"])  # fmt: skip
-    path = train_pixelcnn(store, codes, run_dir, PixelCNNConfig(**config), TrainBudget(**budget), on_epoch=shown,
-                          tensorboard=_board(tensorboard, run_dir))  # fmt: skip
+    shown = _show(
+        ("epoch", "loss", "val_accuracy", "val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact"),
+        run_dir,
+        budget["epochs"],
+    )
+    path = train_pixelcnn(
+        store,
+        codes,
+        run_dir,
+        PixelCNNConfig(**config),
+        TrainBudget(**budget),
+        on_epoch=shown,
+        tensorboard=_board(tensorboard, run_dir),
+    )
     return str(path)
 
 
@@ -103,9 +123,14 @@ def build_codes_task(store: str, checkpoint: str, name: str) -> str:
 
 
 @flow(name="train-vqvae", log_prints=True)
-def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
-                     budget: dict | None = None, overrides: dict | None = None,
-                     tensorboard: str | None = None) -> str:  # fmt: skip
+def train_vqvae_flow(
+    store: str = "datasets/frames.zarr",
+    model: str = "default",
+    out: str = "datasets/checkpoints",
+    budget: dict | None = None,
+    overrides: dict | None = None,
+    tensorboard: str | None = None,
+) -> str:
     """Train the VQ-VAE preset `model` (with optional config `overrides`) on `store`; `tensorboard`: a folder for
     TensorBoard event files (one subfolder per run)."""
     config = world_model_spec(model).tokenizer.model_copy(update=overrides or {})
@@ -120,14 +145,26 @@ def train_vqvae_flow(store: str = "datasets/frames.zarr", model: str = "default"
 
 
 @flow(name="train-pixelcnn", log_prints=True)
-def train_pixelcnn_flow(store: str = "datasets/frames.zarr", model: str = "default", out: str = "datasets/checkpoints",
-                        budget: dict | None = None, overrides: dict | None = None,
-                        codes: str | None = None, tensorboard: str | None = None) -> str:  # fmt: skip
+def train_pixelcnn_flow(
+    store: str = "datasets/frames.zarr",
+    model: str = "default",
+    out: str = "datasets/checkpoints",
+    budget: dict | None = None,
+    overrides: dict | None = None,
+    codes: str | None = None,
+    tensorboard: str | None = None,
+) -> str:
     """Train the PixelCNN prior preset `model` on the store's `codes_<model>` (made by the VQ-VAE flow), or on
     the code array `codes` (an experiment's tokenizer); `tensorboard` as for the VQ-VAE."""
     config = PixelCNNConfig(**world_model_spec(model).prior.model_copy(update=overrides or {}).model_dump())
-    path = train_pixelcnn_task(store, codes or f"codes_{model}", out, config.model_dump(),
-                               TrainBudget(**(budget or {})).model_dump(), tensorboard)  # fmt: skip
+    path = train_pixelcnn_task(
+        store,
+        codes or f"codes_{model}",
+        out,
+        config.model_dump(),
+        TrainBudget(**(budget or {})).model_dump(),
+        tensorboard,
+    )
     print(f"checkpoint: {path}")
     return path
 
@@ -142,8 +179,9 @@ def parse_overrides(items: list[str]) -> dict:
         try:
             overrides[key] = json.loads(value)
         except json.JSONDecodeError:
-            raise ValueError(f"--set {item!r}: the value {value!r} is not JSON (strings need quotes: "
-                             f"'{key}=\"{value}\"')") from None  # fmt: skip
+            raise ValueError(
+                f"--set {item!r}: the value {value!r} is not JSON (strings need quotes: '{key}=\"{value}\"')"
+            ) from None
     return overrides
 
 
@@ -165,27 +203,50 @@ STORE = "datasets/frames.zarr"
 def _parser() -> CommandParser:
     parser = CommandParser(prog="python -m flows.train", description=__doc__)
     parser.add_argument("stage", choices=["vqvae", "pixelcnn"], help="which stage to train")
-    parser.add_argument("--store", type=PathArgument(PathKind.STORE),
-                        help=f"frames store from flows.build_datasets (default {STORE})")  # fmt: skip
-    parser.add_argument("--world", choices=world_names(), default=None,
-                        help="the store's world, checked against the store's own (default: the store's)")  # fmt: skip
-    parser.add_argument("--model", choices=world_model_names(),
-                        help="world-model configuration (default: the store's world's own: default for the road, "
-                        "a world's configuration of its own name for another)")  # fmt: skip
-    parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets/checkpoints",
-                        help="folder for training runs")  # fmt: skip
+    parser.add_argument(
+        "--store", type=PathArgument(PathKind.STORE), help=f"frames store from flows.build_datasets (default {STORE})"
+    )
+    parser.add_argument(
+        "--world",
+        choices=world_names(),
+        default=None,
+        help="the store's world, checked against the store's own (default: the store's)",
+    )
+    parser.add_argument(
+        "--model",
+        choices=world_model_names(),
+        help="world-model configuration (default: the store's world's own: default for the road, "
+        "a world's configuration of its own name for another)",
+    )
+    parser.add_argument(
+        "--out",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        default="datasets/checkpoints",
+        help="folder for training runs",
+    )
     for name in ("epochs", "steps_per_epoch", "max_minutes", "threads"):
         default = TrainBudget.model_fields[name].default
-        parser.add_argument(f"--{name.replace('_', '-')}", type=bounded(TrainBudget, name), default=default,
-                            help=field_help(TrainBudget, name))  # fmt: skip
+        parser.add_argument(
+            f"--{name.replace('_', '-')}",
+            type=bounded(TrainBudget, name),
+            default=default,
+            help=field_help(TrainBudget, name),
+        )
     parser.add_argument("--device", help="torch device to train on, e.g. cuda (default: the CPU); same run folder")
-    parser.add_argument("--init-from", type=PathArgument(PathKind.WEIGHTS), metavar="CHECKPOINT",
-                        help="start from these weights (same architecture)")  # fmt: skip
+    parser.add_argument(
+        "--init-from",
+        type=PathArgument(PathKind.WEIGHTS),
+        metavar="CHECKPOINT",
+        help="start from these weights (same architecture)",
+    )
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=JSON", help="override config fields")
     parser.add_argument("--codes", help="pixelcnn: the store's code array to train on (default: codes_<model>)")
-    parser.add_argument("--tensorboard", type=PathArgument(PathKind.OUTPUT_FOLDER), metavar="DIR",
-                        help=f"also write TensorBoard scalars and images to DIR/<run folder>/ (needs the tensorboard "
-                        f"extra: {INSTALL})")  # fmt: skip
+    parser.add_argument(
+        "--tensorboard",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        metavar="DIR",
+        help=f"also write TensorBoard scalars and images to DIR/<run folder>/ (needs the tensorboard extra: {INSTALL})",
+    )
     add_debug_option(parser)
     return parser
 
@@ -194,8 +255,14 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
     """The run's (config overrides, budget), every value and path checked before any flow starts; an error is a
     ValueError naming the bad one."""
     overrides = parse_overrides(args.set)
-    budget = TrainBudget(epochs=args.epochs, steps_per_epoch=args.steps_per_epoch, max_minutes=args.max_minutes,
-                         threads=args.threads, init_from=args.init_from, device=args.device).model_dump()  # fmt: skip
+    budget = TrainBudget(
+        epochs=args.epochs,
+        steps_per_epoch=args.steps_per_epoch,
+        max_minutes=args.max_minutes,
+        threads=args.threads,
+        init_from=args.init_from,
+        device=args.device,
+    ).model_dump()
     preset = world_model_spec(args.model)
     try:
         if args.stage == "vqvae":
@@ -220,12 +287,15 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
     if args.world is not None and world != args.world:
         raise ValueError(f"--store {args.store}: holds the {world} world's episodes, not --world {args.world}'s")
     if world != preset.world:
-        raise ValueError(f"--store {args.store}: holds the {world} world's episodes; --model {args.model} models the "
-                         f"{preset.world} world's (the {world} world's: {', '.join(models_of(world))})")  # fmt: skip
+        raise ValueError(
+            f"--store {args.store}: holds the {world} world's episodes; --model {args.model} models the "
+            f"{preset.world} world's (the {world} world's: {', '.join(models_of(world))})"
+        )
     codes = args.codes or f"codes_{args.model}"
     if args.stage == "pixelcnn" and codes not in group:
-        raise FileNotFoundError(f"{args.store}: no {codes}; train the VQ-VAE first "
-                                f"(python -m flows.train vqvae --model {args.model})")  # fmt: skip
+        raise FileNotFoundError(
+            f"{args.store}: no {codes}; train the VQ-VAE first (python -m flows.train vqvae --model {args.model})"
+        )
     return overrides, budget
 
 
@@ -246,8 +316,14 @@ def main(argv: list[str] | None = None) -> str:
         overrides, budget = _checked(args)
     except (ConfigError, ValueError, FileNotFoundError, CheckpointError, MissingExtra) as error:
         parser.error(str(error))
-    common = {"store": args.store, "model": args.model, "out": args.out, "budget": budget, "overrides": overrides,
-              "tensorboard": args.tensorboard}  # fmt: skip
+    common = {
+        "store": args.store,
+        "model": args.model,
+        "out": args.out,
+        "budget": budget,
+        "overrides": overrides,
+        "tensorboard": args.tensorboard,
+    }
     if args.stage == "vqvae":
         return train_vqvae_flow(**common)
     return train_pixelcnn_flow(**common, codes=args.codes or f"codes_{args.model}")

@@ -29,23 +29,47 @@ from dynplan.world import world, world_names
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = CommandParser(prog="python -m flows.view", description=__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(
+        prog="python -m flows.view", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("log", nargs="?", type=PathArgument(PathKind.LOG), help="an episode or replay log (.mcap)")
-    parser.add_argument("--world", choices=world_names(), default=None,
-                        help="the log's world, checked against the log's own (default: the log's)")  # fmt: skip
-    parser.add_argument("--port", type=Bounded(int, 0, 65535), default=0,
-                        help="the port to serve on at 127.0.0.1 (default 0: a free one)")  # fmt: skip
-    parser.add_argument("--screenshot", type=PathArgument(PathKind.OUTPUT_FILE),
-                        help="write a picture (.png) of the view from headless Chromium, not serve")  # fmt: skip
-    parser.add_argument("--at", type=Bounded(float, 0.0, 86400.0),
-                        help="seconds of log time to show; default: once every panel has a message")  # fmt: skip
-    parser.add_argument("--timeout", type=Bounded(float, 1.0, 3600.0),
-                        help="seconds the screenshot waits for the app to draw (default 60)")  # fmt: skip
-    parser.add_argument("--install", action="store_true",
-                        help="fetch the app into the cache (done on first use anyway); alone, only that")  # fmt: skip
-    parser.add_argument("--cache", type=PathArgument(PathKind.OUTPUT_FOLDER),
-                        help=f"the app's cache (default $DYNPLAN_VIEWER_CACHE or {default_cache()})")  # fmt: skip
+    parser.add_argument(
+        "--world",
+        choices=world_names(),
+        default=None,
+        help="the log's world, checked against the log's own (default: the log's)",
+    )
+    parser.add_argument(
+        "--port",
+        type=Bounded(int, 0, 65535),
+        default=0,
+        help="the port to serve on at 127.0.0.1 (default 0: a free one)",
+    )
+    parser.add_argument(
+        "--screenshot",
+        type=PathArgument(PathKind.OUTPUT_FILE),
+        help="write a picture (.png) of the view from headless Chromium, not serve",
+    )
+    parser.add_argument(
+        "--at",
+        type=Bounded(float, 0.0, 86400.0),
+        help="seconds of log time to show; default: once every panel has a message",
+    )
+    parser.add_argument(
+        "--timeout",
+        type=Bounded(float, 1.0, 3600.0),
+        help="seconds the screenshot waits for the app to draw (default 60)",
+    )
+    parser.add_argument(
+        "--install",
+        action="store_true",
+        help="fetch the app into the cache (done on first use anyway); alone, only that",
+    )
+    parser.add_argument(
+        "--cache",
+        type=PathArgument(PathKind.OUTPUT_FOLDER),
+        help=f"the app's cache (default $DYNPLAN_VIEWER_CACHE or {default_cache()})",
+    )
     add_debug_option(parser)
     return parser
 

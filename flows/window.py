@@ -56,8 +56,9 @@ class PanelWindow:
         self.pygame.display.flip()
 
 
-def checked_window_options(parser: argparse.ArgumentParser, args: argparse.Namespace,
-                           inputs: Sequence[str] = ()) -> list[str] | None:  # fmt: skip
+def checked_window_options(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, inputs: Sequence[str] = ()
+) -> list[str] | None:
     """The key names of `args.script` (None without one), once `--record` and `--screenshot` are files that can be
     written (none of `inputs`), pygame is installed and every key is one of pygame's names."""
     for option, path in (("--record", args.record), ("--screenshot", args.screenshot)):

@@ -72,11 +72,12 @@ def world_job_task(world_name: str, request: dict, job: dict) -> dict:
 @flow(name="evaluate-world", log_prints=True)
 def evaluate_world(world_name: str, request: dict, command: str) -> list[dict]:
     """Begin the run of `request` (a world's evaluation request, as a dict; `command`: what its manifest records)
-    and play every episode it lacks, one task each; print and return the summary of its run."""
+    and play every episode it lacks, one task a job (the world's: an episode or a lockstep batch of them); print and
+    return the summary of its run."""
     own = world(world_name).load().evaluate
     checked = own.request_type(**request)
     futures = [world_job_task.submit(world_name, request, job) for job in own.start(checked, command)]
-    for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} episodes"):
+    for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} jobs"):
         future.result()
     summary = own.summary(checked)
     for line in own.describe(summary):
@@ -87,7 +88,7 @@ def evaluate_world(world_name: str, request: dict, command: str) -> list[dict]:
 def evaluate_main(name: str, own: EvaluateCommand, argv: Sequence[str]) -> list[dict]:
     """`flows.evaluate --world NAME …`."""
     parser = parser_for("python -m flows.evaluate", name, own)
-    parser.add_argument("--workers", type=Bounded(int, 1, 64), default=None, help="episodes at once (default: cores)")
+    parser.add_argument("--workers", type=Bounded(int, 1, 64), default=None, help="jobs at once (default: cores)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     check = "play nothing: replay each row of the run in a fresh game against its outcome (exit 1 naming misfits)"
     parser.add_argument("--check", action="store_true", help=check)
@@ -226,10 +227,10 @@ def play_window(state: PlayState, options: PlayOptions | None = None) -> PlaySta
                 pygame.event.post(pygame.event.Event(pygame.KEYDOWN, key=pygame.key.key_code(keys.pop(0))))
             events = pygame.event.get()
             names = [pygame.key.name(e.key) for e in events if e.type == pygame.KEYDOWN]
-            if any(e.type == pygame.QUIT for e in events) or "escape" in names:
-                break
             for name in names:
                 planner_plays, paused = _handle(state, name, planner_plays, paused)
+            if any(e.type == pygame.QUIT for e in events) or "escape" in names:
+                break
             if planner_plays and not paused and state.running:
                 state.step(*state.planner_action())
             window.show(state.panels(), state.status(planner_plays, paused))

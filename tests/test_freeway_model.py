@@ -64,6 +64,22 @@ def test_the_freeway_tokenizer_pads_the_lanes_onto_its_grid_and_decodes_the_fram
     assert isinstance(model.pixel, Categorical) and model.pixel.values == config.values
 
 
+def test_the_committed_tokenizer_decodes_code_by_code_the_frames_it_decodes_grid_by_grid():
+    """A patch-local code decodes to its own patch alone: laying out each code's decoded patch (what a Freeway
+    prediction does) gives the mid-point frames of decoding whole grids, padding dropped, for every code."""
+    from dynplan.models.world_model import load_world_model
+
+    model = load_world_model(None, "freeway").tokenizer
+    K, (h, w) = model.config.codebook_size, model.config.grid
+    codes = torch.randint(0, K, (6, h, w), generator=torch.Generator().manual_seed(0))
+    codes[0].view(-1)[:K] = torch.arange(K)  # every code, once at least
+    by_code = model.decode_by_code(codes)
+    assert by_code.shape == (6, 154, 152) and by_code.dtype == torch.uint8
+    assert torch.equal(by_code, model.decode(codes))
+    with pytest.raises(ValueError, match="patch-local"):
+        VQVAE(VQVAEConfig()).decode_by_code(codes[:, :12, :12])
+
+
 def test_a_tokenizer_of_another_world_is_refused_the_roads_likelihood_or_a_world_it_lacks():
     with pytest.raises(ValueError, match="likelihood 'dmol' snaps to the road's pixel values; the freeway world"):
         VQVAEConfig(world="freeway", height=156, width=152, likelihood="dmol")

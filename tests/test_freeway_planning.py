@@ -15,10 +15,10 @@ from PIL import Image
 from dynplan.config import ConfigError
 from dynplan.evaluation.store import ROAD_RUNS, Run, StoreError
 from dynplan.worlds.freeway import evaluation
-from dynplan.worlds.freeway.evaluation import FreewayPlan, evaluate_episode, read_run, summarise
+from dynplan.worlds.freeway.evaluation import FreewayPlan, evaluate_episodes, read_run, summarise
 from dynplan.worlds.freeway.game import BOTTOM_Y, ROAD_VALUES, Chicken, FreewayEpisode, chicken_step
 from dynplan.worlds.freeway.replay import GIF_STEPS
-from dynplan.worlds.freeway.results import RUNS, SETTINGS, replay_check
+from dynplan.worlds.freeway.results import RUNS, SETTINGS, replay_check, settings
 from dynplan.worlds.freeway.search import ChickenSearch, plan_chicken
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
@@ -68,21 +68,36 @@ def _run(root, name="run"):
 
 def test_an_evaluation_resumes_from_its_run_and_its_rows_replay(tmp_path, monkeypatch):
     plan, search, run = FreewayPlan(mode=0, episodes=2, seed=0), ChickenSearch(horizon=4), _run(tmp_path)
-    played = evaluate_episode(run, "up", plan, 1, search)
+    played = evaluate_episodes(run, "up", plan, [1], search)[0]
     assert played["episode"] == 1 and played["noop_start"] == plan.episode_list()[1].noop_start
     assert played["score"] >= 20 and played["actions"] == "1" * played["steps"] and replay_check(played) is None
-    other_seed = evaluate_episode(run, "up", FreewayPlan(mode=0, episodes=2, seed=5), 1, search)
+    other_seed = evaluate_episodes(run, "up", FreewayPlan(mode=0, episodes=2, seed=5), [1], search)[0]
     assert other_seed["noop_start"] == FreewayPlan(mode=0, episodes=2, seed=5).episode_list()[1].noop_start
-    monkeypatch.setattr(evaluation, "play_episode", lambda *a, **k: pytest.fail("an episode the run holds is replayed"))
-    assert evaluate_episode(run, "up", plan, 1, search) == played
+    monkeypatch.setattr(evaluation, "play_episodes", lambda *a, **k: pytest.fail("an episode the run holds is played"))
+    assert evaluate_episodes(run, "up", plan, [1], search)[0] == played
     assert read_run(tmp_path, "run") == [played, other_seed]
     assert "score 0, 0 knocks" in replay_check({**played, "actions": "0" * played["steps"]})
     assert "not ending on the last" in replay_check({**played, "actions": played["actions"][:-1]})
 
 
+def test_a_sticky_run_replays_with_its_own_settings(tmp_path):
+    """With sticky actions the game repeats frames of the last action, drawn from each episode's seed: a row
+    replays to its score, knocks and steps with its run's settings, and the deterministic game would not."""
+    run = Run(tmp_path, "sticky", RUNS)
+    run.start("evaluation", settings(0.25), {}, "tests")
+    plan = FreewayPlan(mode=0, episodes=2, sticky=0.25)
+    rows = evaluate_episodes(run, "random", plan, [0, 1], ChickenSearch(horizon=2))
+    assert all(replay_check(row, settings(0.25)) is None for row in rows)
+    assert replay_check(rows[1], SETTINGS) == (
+        "its actions replay to score 0, 17 knocks, 2029 steps; the row says 0, 16, 2029"
+    )
+    with pytest.raises(StoreError, match="has settings"):
+        run.start("evaluation", SETTINGS, {}, "tests")
+
+
 def test_a_run_refuses_a_row_it_cannot_hold(tmp_path):
     run, plan, search = _run(tmp_path), FreewayPlan(mode=0, episodes=1), ChickenSearch(horizon=2)
-    row = evaluate_episode(run, "up", plan, 0, search)
+    row = evaluate_episodes(run, "up", plan, [0], search)[0]
     for bad, why in (({"score": 1e9}, "score"), ({"score": "abc"}, "score"), ({"mode": 9}, "mode"),
                      ({"actions": "13"}, "actions"), ({"extra": 1}, "extra"), ({"steps": True}, "steps")):  # fmt: skip
         with pytest.raises(StoreError, match=why):

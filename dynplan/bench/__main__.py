@@ -21,8 +21,10 @@ def main(argv: list[str] | None = None) -> int:
     options = {}
     if args.device is not None:
         if args.name not in with_device:
-            parser.error(f"--device: the {args.name} benchmark runs on the CPU only; --device applies to "
-                         f"{', '.join(with_device)}")  # fmt: skip
+            parser.error(
+                f"--device: the {args.name} benchmark runs on the CPU only; --device applies to "
+                f"{', '.join(with_device)}"
+            )
         from dynplan.models.device import check_device
 
         try:

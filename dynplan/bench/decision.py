@@ -30,16 +30,20 @@ def bench_decision(decisions: int = 30, threads: int = 2) -> dict[str, dict[str,
     world = generate_world(RoadConfig(), 2_000_000)
     results = {}
     off = {"occupancy": 0.0, "margin": 0}
-    variants = (("default", "model_samples5_k3", None), ("default", "model_samples5_k3_no_occupancy", off),
-                ("paper", "model_samples5_k3_paper", None))  # fmt: skip
+    variants = (
+        ("default", "model_samples5_k3", None),
+        ("default", "model_samples5_k3_no_occupancy", off),
+        ("paper", "model_samples5_k3_paper", None),
+    )
     for name, case, caution in variants:
         try:
             model, weights = load_world_model(model=name, samples=5, caution=caution), "committed"
         except CheckpointError:
             torch.manual_seed(0)
             prior = ConditionalPixelCNN(world_model_spec(name).prior)
-            model = LearnedWorldModel(VQVAE(world_model_spec(name).tokenizer), prior, samples=5,
-                                      caution=caution_for(name, caution))  # fmt: skip
+            model = LearnedWorldModel(
+                VQVAE(world_model_spec(name).tokenizer), prior, samples=5, caution=caution_for(name, caution)
+            )
             weights = "untrained"
         planner = MCTSPlanner(MCTSConfig(rollout_steps=3), agent_speed=1.0, max_steps=203)
         times = []
@@ -48,7 +52,11 @@ def bench_decision(decisions: int = 30, threads: int = 2) -> dict[str, dict[str,
             planner.act(world.agent_start, t, model.predict(world.frames[: t + 1], 3))
             times.append((time.perf_counter() - start) * 1e3)
         median = float(np.median(times[1:]))  # the first call compiles
-        results[case] = {"median_ms": round(median, 1), "paper_gpu_ms": PAPER_GPU_MS,
-                         "speedup_vs_paper": round(PAPER_GPU_MS / median, 1), "threads": threads,
-                         "weights": weights}  # fmt: skip
+        results[case] = {
+            "median_ms": round(median, 1),
+            "paper_gpu_ms": PAPER_GPU_MS,
+            "speedup_vs_paper": round(PAPER_GPU_MS / median, 1),
+            "threads": threads,
+            "weights": weights,
+        }
     return results

@@ -59,9 +59,11 @@ def _bench_configuration(name: str, repeats: int, samples: int, generator: torch
             raise AssertionError(f"{name}: the decoder samples in blocks and the whole batch's disagree")
         whole = median_seconds(lambda: tokenizer.pixel.sample_tensor(params, noise), repeats) * 1e3 / FRAMES
         blocked = median_seconds(lambda: tokenizer.pixel.sample_with(params, noise), repeats) * 1e3 / FRAMES
-        blocks = {f"{samples}_samples_whole_ms_per_frame": round(whole, 3),
-                  f"{samples}_samples_blocked_ms_per_frame": round(blocked, 3),
-                  "samples_ratio": round(whole / blocked, 2)}  # fmt: skip
+        blocks = {
+            f"{samples}_samples_whole_ms_per_frame": round(whole, 3),
+            f"{samples}_samples_blocked_ms_per_frame": round(blocked, 3),
+            "samples_ratio": round(whole / blocked, 2),
+        }
     logits = torch.randn(BLOCK_ROWS, K, generator=generator) * 3.0
     uniforms = torch.rand(BLOCK_ROWS, generator=generator, dtype=torch.float64)
     work, cdf = torch.empty(BLOCK_ROWS, K, dtype=torch.float64), torch.empty(BLOCK_ROWS, K, dtype=torch.float64)

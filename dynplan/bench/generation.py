@@ -89,13 +89,17 @@ def bench_batched(batches: tuple[int, ...] = BATCHES, repeats: int = 5, threads:
             draws = torch.Generator().manual_seed(B)
             context = torch.randint(0, prior.config.codebook_size, (B, 4, h, w), generator=draws)
             uniforms = draw_uniforms(B, h, w, 1.0, draws)
-            kinds = {"greedy": ({"table": lookup}, {"table": table}),
-                     "sampled": ({"temperature": 1.0, "uniforms": uniforms},) * 2}  # fmt: skip
+            kinds = {
+                "greedy": ({"table": lookup}, {"table": table}),
+                "sampled": ({"temperature": 1.0, "uniforms": uniforms},) * 2,
+            }
             for kind, (for_kernel, for_batch) in kinds.items():
-                by_kernel = _median_ms_per_grid(partial(generate_fast, prior, context, weights=kernel, **for_kernel),
-                                                B, repeats)  # fmt: skip
-                by_batch = _median_ms_per_grid(partial(generate_batched, prior, context, weights=batched,
-                                                       **for_batch), B, repeats)  # fmt: skip
+                by_kernel = _median_ms_per_grid(
+                    partial(generate_fast, prior, context, weights=kernel, **for_kernel), B, repeats
+                )
+                by_batch = _median_ms_per_grid(
+                    partial(generate_batched, prior, context, weights=batched, **for_batch), B, repeats
+                )
                 results[f"{name}_{kind}_batch{B}"] = {
                     "kernel_ms_per_grid": round(by_kernel, 2),
                     "batched_ms_per_grid": round(by_batch, 2),

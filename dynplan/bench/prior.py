@@ -26,8 +26,14 @@ def _rows_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.
     return model(context, target).loss
 
 
-def _train_rate(model: ConditionalPixelCNN, loss_fn: Callable, optimiser: torch.optim.Optimizer,
-                context: torch.Tensor, target: torch.Tensor, steps: int) -> float:  # fmt: skip
+def _train_rate(
+    model: ConditionalPixelCNN,
+    loss_fn: Callable,
+    optimiser: torch.optim.Optimizer,
+    context: torch.Tensor,
+    target: torch.Tensor,
+    steps: int,
+) -> float:
     start = time.perf_counter()
     for _ in range(steps):
         loss = loss_fn(model, context, target)
@@ -37,8 +43,9 @@ def _train_rate(model: ConditionalPixelCNN, loss_fn: Callable, optimiser: torch.
     return steps * len(target) / (time.perf_counter() - start)
 
 
-def bench_prior(steps: int = 4, repeats: int = 3, threads: int = 2,
-                presets: tuple[str, ...] = ("paper", "default")) -> dict[str, dict[str, float]]:  # fmt: skip
+def bench_prior(
+    steps: int = 4, repeats: int = 3, threads: int = 2, presets: tuple[str, ...] = ("paper", "default")
+) -> dict[str, dict[str, float]]:
     """Median over `repeats` of `steps` training batches per preset, alternating baseline and ours."""
     torch.set_num_threads(threads)
     results = {}

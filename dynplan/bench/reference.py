@@ -10,8 +10,12 @@ from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms, pick
 
 
 @torch.inference_mode()
-def generate_naive(model: ConditionalPixelCNN, context: torch.Tensor, temperature: float = 0.0,
-                   generator: torch.Generator | None = None) -> torch.Tensor:  # fmt: skip
+def generate_naive(
+    model: ConditionalPixelCNN,
+    context: torch.Tensor,
+    temperature: float = 0.0,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
     """The next code grid, one full forward pass per position: greedy (argmax) when `temperature` is 0, else
     sampled at that temperature with numbers drawn up front (`draw_uniforms`). context (B, 4, h, w) → codes
     (B, h, w)."""

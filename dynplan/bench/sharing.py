@@ -59,8 +59,11 @@ def table1_grids(rows: list[dict]) -> dict[str, dict[str, int | float]]:
     for model in sorted(per_case):
         shared = sum(k for key, k in greedy.items() if key[0] == model)
         shared += sum(count * k for (key, count), k in futures.items() if key[0] == model)
-        out[f"grids_{model}"] = {"per_case": per_case[model], "shared": shared,
-                                 "ratio": round(per_case[model] / shared, 2)}  # fmt: skip
+        out[f"grids_{model}"] = {
+            "per_case": per_case[model],
+            "shared": shared,
+            "ratio": round(per_case[model] / shared, 2),
+        }
     return out
 
 

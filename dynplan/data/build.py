@@ -50,13 +50,24 @@ class BuildReport:
     repaired: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {"store": self.store, "episodes": self.episodes, "added": self.added, "skipped": self.skipped,
-                "failed": self.failed, "repaired": self.repaired}  # fmt: skip
+        return {
+            "store": self.store,
+            "episodes": self.episodes,
+            "added": self.added,
+            "skipped": self.skipped,
+            "failed": self.failed,
+            "repaired": self.repaired,
+        }
 
 
 def _geometry(info: LogInfo) -> dict:
-    return {"world": info.world, "config": info.config, "n_frames": info.n_frames, "height": info.height,
-            "width": info.width}  # fmt: skip
+    return {
+        "world": info.world,
+        "config": info.config,
+        "n_frames": info.n_frames,
+        "height": info.height,
+        "width": info.width,
+    }
 
 
 def _create(group: zarr.Group, first: LogInfo) -> None:
@@ -65,9 +76,13 @@ def _create(group: zarr.Group, first: LogInfo) -> None:
     geometry = {k: v for k, v in _geometry(first).items() if k != "world" or v != DEFAULT_WORLD}
     group.attrs.update(
         episodes=0,
-        format=STORE_FORMAT, format_version=STORE_VERSION, dynplan_version=__version__, **geometry,
-        pixel_values=entry.pixel_values(entry.config(first.config)), y_axis=Y_AXIS,
-    )  # fmt: skip
+        format=STORE_FORMAT,
+        format_version=STORE_VERSION,
+        dynplan_version=__version__,
+        **geometry,
+        pixel_values=entry.pixel_values(entry.config(first.config)),
+        y_axis=Y_AXIS,
+    )
     # overwrite=True: a first build killed half-way through creating these is simply started again.
     specs = array_specs(T, H, W)
     for name in store_arrays(entry.name):
@@ -94,8 +109,12 @@ def _build_locked(store: str, infos: Sequence[LogInfo]) -> BuildReport:
     if Path(store, "zarr.json").is_file():  # check what is in before relying on it, repairing from these logs
         checked = verify_store(store, [info for info in infos if not info.error], lock=False)
         report.repaired = [d.describe() for d in checked.damage if d.repaired]
-        report.failed.update({f"{store}/{d.chunk}" if d.kind != "chunk" else f"{store}/{d.array}/{d.chunk}":
-                              d.describe() for d in checked.unrepaired})  # fmt: skip
+        report.failed.update(
+            {
+                f"{store}/{d.chunk}" if d.kind != "chunk" else f"{store}/{d.array}/{d.chunk}": d.describe()
+                for d in checked.unrepaired
+            }
+        )
         if checked.unrepaired:
             return report
     known = set(committed_checksums(store))
@@ -125,8 +144,10 @@ def _acceptable(group: zarr.Group, pending: Sequence[LogInfo], report: BuildRepo
     """The new logs that fit the store (recorded worlds of its geometry, of seeds not in it); the others are
     entered in `report.failed` with the reason."""
     n = committed(group)
-    expected = {"world": store_world(group.attrs), **{k: group.attrs[k] for k in ("config", "n_frames", "height",
-                                                                                   "width")}}  # fmt: skip
+    expected = {
+        "world": store_world(group.attrs),
+        **{k: group.attrs[k] for k in ("config", "n_frames", "height", "width")},
+    }
     seeds = {int(seed): str(name) for seed, name in zip(group["seed"][:n], group["log_name"][:n], strict=True)}
     accepted = []
     for info in pending:

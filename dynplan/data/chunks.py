@@ -61,8 +61,10 @@ def chunks(array: zarr.Array, rows: int | None = None) -> Iterator[Chunk]:
     shape = (rows, *array.shape[1:])
     ranges = [range(0, -(-size // step)) for size, step in zip(shape, array.chunks, strict=True)]
     for coords in itertools.product(*ranges):
-        region = tuple(slice(c * step, min(size, (c + 1) * step))
-                       for c, step, size in zip(coords, array.chunks, shape, strict=True))  # fmt: skip
+        region = tuple(
+            slice(c * step, min(size, (c + 1) * step))
+            for c, step, size in zip(coords, array.chunks, shape, strict=True)
+        )
         yield Chunk(array.basename, array.metadata.encode_chunk_key(coords), region)
 
 
@@ -99,12 +101,20 @@ def read(store: str | os.PathLike, array: zarr.Array, selection, describe: Calla
         raise
 
 
-def damaged(store: str | os.PathLike, array: zarr.Array, chunk: Chunk, problem: str,
-            describe: Callable[[range], str] | None = None) -> ChunkError:  # fmt: skip
+def damaged(
+    store: str | os.PathLike,
+    array: zarr.Array,
+    chunk: Chunk,
+    problem: str,
+    describe: Callable[[range], str] | None = None,
+) -> ChunkError:
     """The ChunkError for a damaged chunk, with what to run."""
     rows = chunk.rows
-    episodes = describe(rows) if describe else (f"episode {rows.start}" if len(rows) == 1 else
-                                                f"episodes {rows.start}–{rows.stop - 1}")  # fmt: skip
+    episodes = (
+        describe(rows)
+        if describe
+        else (f"episode {rows.start}" if len(rows) == 1 else f"episodes {rows.start}–{rows.stop - 1}")
+    )
     return ChunkError(
         f"{store}: array {array.basename!r}, chunk {chunk.key} ({episodes}) is damaged: {problem}; "
         f"check and repair the store with: python -m flows.build_datasets --verify {store} LOG_DIR"

@@ -52,8 +52,13 @@ def log_path(out_dir: str | os.PathLike, seed: int) -> Path:
     return Path(out_dir) / f"episode_{seed:010d}.mcap"
 
 
-def record_episode(out_dir: str | os.PathLike, seed: int, config: Config | dict | None = None,
-                   n_frames: int | None = None, world_name: str = DEFAULT_WORLD) -> RecordResult:  # fmt: skip
+def record_episode(
+    out_dir: str | os.PathLike,
+    seed: int,
+    config: Config | dict | None = None,
+    n_frames: int | None = None,
+    world_name: str = DEFAULT_WORLD,
+) -> RecordResult:
     """Make sure `out_dir` holds the log of the episode `seed` of a world under `config` (`n_frames` frames; a
     config of the world `world_name` given as a dict, or its recording default): a log already there is kept
     ("skipped") only if it is what the seed records, and rewritten otherwise."""

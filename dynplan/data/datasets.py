@@ -48,8 +48,9 @@ class _EpisodeArray(Dataset):
     """Shared loading: which episodes of `array` are in the split, each read once on first use. "all" is every
     episode a model may see: the training and validation episodes, not those of the world's held out."""
 
-    def __init__(self, store: str | os.PathLike, split: Split = "train", val_fraction: float = 0.1,
-                 array: str = "frames"):  # fmt: skip
+    def __init__(
+        self, store: str | os.PathLike, split: Split = "train", val_fraction: float = 0.1, array: str = "frames"
+    ):
         if split not in ("train", "validation", "all"):
             raise ValueError(f"split must be 'train', 'validation' or 'all', got {split!r}")
         group = zarr.open_group(str(store), mode="r", use_consolidated=False)  # arrays may be growing
@@ -92,8 +93,14 @@ class WindowDataset(_EpisodeArray):
     """Windows of one episode: item → (context (context, …), target (…)), the `context` frames before the target
     (`dynplan.data.history`), for every target from `first_target(context)` to the episode's last frame."""
 
-    def __init__(self, store: str | os.PathLike, split: Split = "train", val_fraction: float = 0.1,
-                 array: str = "frames", context: int = CONTEXT):  # fmt: skip
+    def __init__(
+        self,
+        store: str | os.PathLike,
+        split: Split = "train",
+        val_fraction: float = 0.1,
+        array: str = "frames",
+        context: int = CONTEXT,
+    ):
         super().__init__(store, split, val_fraction, array)
         if not 1 <= context < self.n_frames:
             raise ValueError(f"context must be in [1, {self.n_frames - 1}], got {context}")

@@ -15,6 +15,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pydantic import BaseModel
 from zarr.core.metadata.v3 import ArrayV3Metadata
 
 from dynplan.config import ConfigError
@@ -29,7 +30,7 @@ from dynplan.data.store import (
     store_arrays,
     store_world,
 )
-from dynplan.world import world
+from dynplan.world import World, world
 
 #: How to start again when the store itself cannot be repaired.
 REBUILD = "rebuild the store from its logs: python -m flows.build_datasets LOG_DIR --out NEW.zarr"
@@ -74,8 +75,9 @@ def check_metadata(store: str) -> StoreMetadata:
     meta = StoreMetadata()
     data, problem = read_json(Path(store, "zarr.json"))
     if data is not None and (data.get("zarr_format"), data.get("node_type")) != (3, "group"):
-        problem = f"not Zarr v3 group metadata (zarr_format {data.get('zarr_format')!r}, node_type " \
-                  f"{data.get('node_type')!r})"  # fmt: skip
+        problem = (
+            f"not Zarr v3 group metadata (zarr_format {data.get('zarr_format')!r}, node_type {data.get('node_type')!r})"
+        )
     if data is not None and not problem and not isinstance(data.get("attributes", {}), dict):
         problem = "its 'attributes' is not a JSON object"
     if problem:
@@ -86,13 +88,21 @@ def check_metadata(store: str) -> StoreMetadata:
         meta.episodes = 0
         return meta
     if not attributes:
-        meta.problem("", "group attributes", "the group has no attributes: its episode count, format and geometry "
-                     "are lost", unrepaired_because=REBUILD)  # fmt: skip
+        meta.problem(
+            "",
+            "group attributes",
+            "the group has no attributes: its episode count, format and geometry are lost",
+            unrepaired_because=REBUILD,
+        )
         return meta
     episodes = attributes.get("episodes", "missing")  # every build writes it with the format's attributes
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 0:
-        meta.problem("", "group attributes", f"attribute 'episodes' is {episodes!r}, not a count of episodes "
-                     "(an integer ≥ 0)", unrepaired_because=REBUILD)  # fmt: skip
+        meta.problem(
+            "",
+            "group attributes",
+            f"attribute 'episodes' is {episodes!r}, not a count of episodes (an integer ≥ 0)",
+            unrepaired_because=REBUILD,
+        )
         return meta
     meta.episodes = episodes
     _check_attributes(meta, attributes)
@@ -105,8 +115,12 @@ def check_metadata(store: str) -> StoreMetadata:
         missing = sorted(set(meta.shapes) - meta.damaged - set(meta.consolidated))
         extra = sorted(set(meta.consolidated) - set(meta.shapes) - meta.damaged)
         if (missing or extra) and not any(p["kind"] == "consolidated metadata" for p in meta.problems):
-            meta.problem("", "consolidated metadata", f"the consolidated metadata lacks the arrays {missing} and "
-                         f"names arrays that are not there {extra}", fix={})  # fmt: skip
+            meta.problem(
+                "",
+                "consolidated metadata",
+                f"the consolidated metadata lacks the arrays {missing} and names arrays that are not there {extra}",
+                fix={},
+            )
     _check_lengths(meta)
     return meta
 
@@ -117,8 +131,12 @@ def _read_consolidated(meta: StoreMetadata, consolidated: object) -> None:
         return
     copies = consolidated.get("metadata") if isinstance(consolidated, dict) else None
     if not isinstance(copies, dict) or consolidated.get("kind") != "inline":
-        meta.problem("", "consolidated metadata", "the consolidated metadata is not Zarr's inline block of the "
-                     "arrays' metadata", fix={})  # fmt: skip
+        meta.problem(
+            "",
+            "consolidated metadata",
+            "the consolidated metadata is not Zarr's inline block of the arrays' metadata",
+            fix={},
+        )
         copies = {}
     meta.consolidated = copies
 
@@ -126,15 +144,7 @@ def _read_consolidated(meta: StoreMetadata, consolidated: object) -> None:
 def _check_attributes(meta: StoreMetadata, attributes: dict) -> None:
     """The group's attributes: its format, a world config that agrees with its geometry, and the format's
     pixel values and y axis."""
-    if attributes.get("format") != STORE_FORMAT:
-        meta.problem("", "group attributes", f"attribute 'format' is {attributes.get('format')!r}, the format's is "
-                     f"{STORE_FORMAT!r}", unrepaired_because=REBUILD)  # fmt: skip
-    if attributes.get("format_version") not in (STORE_VERSION, "1"):
-        meta.problem("", "group attributes", f"attribute 'format_version' is {attributes.get('format_version')!r}, "
-                     f"not a version of the format ('1' or {STORE_VERSION!r})", unrepaired_because=REBUILD)  # fmt: skip
-    if not isinstance(attributes.get("dynplan_version"), str):  # which dynplan built it: a record, never guessed
-        meta.problem("", "group attributes", f"attribute 'dynplan_version' is {attributes.get('dynplan_version')!r}, "
-                     "not a version string", fix={"dynplan_version": "unknown"})  # fmt: skip
+    _check_format(meta, attributes)
     try:
         entry = world(str(store_world(attributes)))
     except ConfigError as error:
@@ -145,19 +155,61 @@ def _check_attributes(meta: StoreMetadata, attributes: dict) -> None:
         config = entry.config(attributes.get("config"))
     except (ValueError, TypeError, ConfigError) as error:
         reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-        meta.problem("", "group attributes", f"attribute 'config' is not a world config ({reason})",
-                     unrepaired_because=REBUILD)  # fmt: skip
+        meta.problem(
+            "", "group attributes", f"attribute 'config' is not a world config ({reason})", unrepaired_because=REBUILD
+        )
         return
     if config.model_dump() != attributes.get("config"):
-        meta.problem("", "group attributes", f"attribute 'config' {attributes.get('config')} is not a whole world "
-                     f"config (as a build writes it: {config.model_dump()})", unrepaired_because=REBUILD)  # fmt: skip
+        meta.problem(
+            "",
+            "group attributes",
+            f"attribute 'config' {attributes.get('config')} is not a whole world "
+            f"config (as a build writes it: {config.model_dump()})",
+            unrepaired_because=REBUILD,
+        )
         return
+    _check_geometry(meta, attributes, entry, config)
+
+
+def _check_format(meta: StoreMetadata, attributes: dict) -> None:
+    """The format's name and version, and the dynplan version that built the store."""
+    if attributes.get("format") != STORE_FORMAT:
+        meta.problem(
+            "",
+            "group attributes",
+            f"attribute 'format' is {attributes.get('format')!r}, the format's is {STORE_FORMAT!r}",
+            unrepaired_because=REBUILD,
+        )
+    if attributes.get("format_version") not in (STORE_VERSION, "1"):
+        meta.problem(
+            "",
+            "group attributes",
+            f"attribute 'format_version' is {attributes.get('format_version')!r}, "
+            f"not a version of the format ('1' or {STORE_VERSION!r})",
+            unrepaired_because=REBUILD,
+        )
+    if not isinstance(attributes.get("dynplan_version"), str):  # which dynplan built it: a record, never guessed
+        meta.problem(
+            "",
+            "group attributes",
+            f"attribute 'dynplan_version' is {attributes.get('dynplan_version')!r}, not a version string",
+            fix={"dynplan_version": "unknown"},
+        )
+
+
+def _check_geometry(meta: StoreMetadata, attributes: dict, entry: World, config: BaseModel) -> None:
+    """The frames' geometry against the world config, and the format's pixel values and y axis."""
     geometry = tuple(attributes.get(k) for k in ("n_frames", "height", "width"))
     wanted = (geometry[0], config.height, config.width)
     if not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in geometry) or geometry != wanted:
-        meta.problem("", "group attributes", f"attributes (n_frames, height, width) are {list(geometry)}; the "
-                     f"config gives height {config.height} and width {config.width}, and n_frames must be an "
-                     "integer ≥ 1", unrepaired_because=REBUILD)  # fmt: skip
+        meta.problem(
+            "",
+            "group attributes",
+            f"attributes (n_frames, height, width) are {list(geometry)}; the "
+            f"config gives height {config.height} and width {config.width}, and n_frames must be an "
+            "integer ≥ 1",
+            unrepaired_because=REBUILD,
+        )
         return
     meta.geometry = geometry
     fix = {"pixel_values": entry.pixel_values(config), "y_axis": Y_AXIS}
@@ -207,8 +259,12 @@ def _expected(name: str, actual: dict, geometry: tuple[int, int, int] | None) ->
     if name.startswith("codes_"):  # (episode, time, code_y, code_x[, codebook]), one episode per chunk
         length = geometry[0] if geometry else (shape[1] if len(shape) > 1 else 0)
         shape = [shape[0], length, *shape[2:]]
-        spec = {"shape": shape, "chunks": (1, *shape[1:]), "dtype": "uint16",
-                "dimension_names": actual.get("dimension_names")}  # fmt: skip
+        spec = {
+            "shape": shape,
+            "chunks": (1, *shape[1:]),
+            "dtype": "uint16",
+            "dimension_names": actual.get("dimension_names"),
+        }
         return json.loads(spec_metadata(spec))
     return json.loads(format_metadata(name, shape[0], geometry)) if geometry else None
 
@@ -277,8 +333,12 @@ def _check_lengths(meta: StoreMetadata) -> None:
     lengths = {name: meta.shapes[name][0] for name in meta.arrays if meta.shapes.get(name)}
     if n and len(lengths) == len(meta.arrays) and all(length < n for length in lengths.values()):
         held = ", ".join(f"{name} {length}" for name, length in lengths.items())
-        meta.problem("", "group attributes", f"attribute 'episodes' is {n}, but every array holds fewer ({held})",
-                     unrepaired_because=REBUILD)  # fmt: skip
+        meta.problem(
+            "",
+            "group attributes",
+            f"attribute 'episodes' is {n}, but every array holds fewer ({held})",
+            unrepaired_because=REBUILD,
+        )
 
 
 def metadata_problem(store: str | os.PathLike) -> str | None:
@@ -289,5 +349,7 @@ def metadata_problem(store: str | os.PathLike) -> str | None:
         return None
     first = problems[0]
     more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
-    return (f"{store}: {first['chunk']}: {first['problem']}{more}; check and repair it: python -m "
-            f"flows.build_datasets --verify {store} LOG_DIR")  # fmt: skip
+    return (
+        f"{store}: {first['chunk']}: {first['problem']}{more}; check and repair it: python -m "
+        f"flows.build_datasets --verify {store} LOG_DIR"
+    )

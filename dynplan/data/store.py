@@ -68,14 +68,22 @@ def array_specs(n_frames: int, height: int, width: int) -> dict[str, dict]:
     T, H, W = n_frames, height, width
     strings = {"shape": (0,), "chunks": (1024,), "dtype": str, "dimension_names": ("episode",)}
     return {
-        "frames": {"shape": (0, T, H, W), "chunks": (1, T, H, W), "dtype": "uint8",
-                   "dimension_names": ("episode", "time", "y", "x")},
-        "goal": {"shape": (0, T, 2), "chunks": (BATCH_EPISODES, T, 2), "dtype": "float64",
-                 "dimension_names": ("episode", "time", "yx")},
+        "frames": {
+            "shape": (0, T, H, W),
+            "chunks": (1, T, H, W),
+            "dtype": "uint8",
+            "dimension_names": ("episode", "time", "y", "x"),
+        },
+        "goal": {
+            "shape": (0, T, 2),
+            "chunks": (BATCH_EPISODES, T, 2),
+            "dtype": "float64",
+            "dimension_names": ("episode", "time", "yx"),
+        },
         "seed": {**strings, "dtype": "int64"},
         "log_name": strings,
         "log_sha256": strings,
-    }  # fmt: skip
+    }
 
 
 def format_metadata(name: str, rows: int, geometry: tuple[int, int, int], attributes: dict | None = None) -> bytes:
@@ -144,8 +152,18 @@ def inspect_for_store(path: str | os.PathLike) -> LogInfo:
         return LogInfo(path, sha, error=str(error))
     H, W = log.frames.shape[1:]
     config = json.loads(log.metadata["config"])
-    return LogInfo(path, sha, log.seed, log.n_frames, H, W, config, log.goal, log.metadata.get("kind", "world"),
-                   world=log.entry.name)  # fmt: skip
+    return LogInfo(
+        path,
+        sha,
+        log.seed,
+        log.n_frames,
+        H,
+        W,
+        config,
+        log.goal,
+        log.metadata.get("kind", "world"),
+        world=log.entry.name,
+    )
 
 
 def load_frames(path: str) -> np.ndarray:

@@ -84,8 +84,13 @@ class VerifyReport:
         return [d for d in self.damage if not d.repaired]
 
     def to_dict(self) -> dict:
-        return {"store": self.store, "episodes": self.episodes, "chunks": self.chunks,
-                "damage": [d.describe() for d in self.damage], "unrepaired": len(self.unrepaired)}  # fmt: skip
+        return {
+            "store": self.store,
+            "episodes": self.episodes,
+            "chunks": self.chunks,
+            "damage": [d.describe() for d in self.damage],
+            "unrepaired": len(self.unrepaired),
+        }
 
 
 def _column(array: zarr.Array, n: int, bad: set[str]) -> list:
@@ -100,8 +105,9 @@ def _column(array: zarr.Array, n: int, bad: set[str]) -> list:
 Logs = str | os.PathLike | Sequence[str | os.PathLike | LogInfo]
 
 
-def verify_store(store: str | os.PathLike, logs: Logs | None = None, repair: bool = True,
-                 lock: bool = True) -> VerifyReport:  # fmt: skip
+def verify_store(
+    store: str | os.PathLike, logs: Logs | None = None, repair: bool = True, lock: bool = True
+) -> VerifyReport:
     """Check the metadata of `store` against its format and read every chunk, reporting what is damaged; with
     `logs` (a folder of logs, their paths or their `LogInfo`s) and `repair`, rewrite the damaged episodes (and
     damaged array metadata) from them. Holds the store's lock unless the caller does (`lock=False`)."""
@@ -121,8 +127,11 @@ def verify_store(store: str | os.PathLike, logs: Logs | None = None, repair: boo
         report.damage.extend(_short_arrays(meta, n))
         found = _check_chunks(store, group, names, n, report)
         bad = {name: {c.key for c, _ in found[name]} for name in names}
-        identity = {name: _column(group[name], n, bad[name]) for name in ("seed", "log_name", "log_sha256")
-                    if name in names and meta.shapes[name][0] >= n}  # fmt: skip
+        identity = {
+            name: _column(group[name], n, bad[name])
+            for name in ("seed", "log_name", "log_sha256")
+            if name in names and meta.shapes[name][0] >= n
+        }
         describe = _describer(identity, n)
         report.damage.extend(Damage(name, c.key, c.rows, p, describe(c.rows)) for name in names for c, p in found[name])
         if repair and report.damage:
@@ -146,8 +155,15 @@ def _short_arrays(meta: StoreMetadata, n: int) -> list[Damage]:
             damage.append(Damage(name, "-", range(0, n), "the array is missing", "every episode"))
         elif meta.shapes[name][0] < n:
             length = meta.shapes[name][0]
-            damage.append(Damage(name, "-", range(length, n), f"holds {length} of the {n} committed episodes",
-                                 "the episodes after those"))  # fmt: skip
+            damage.append(
+                Damage(
+                    name,
+                    "-",
+                    range(length, n),
+                    f"holds {length} of the {n} committed episodes",
+                    "the episodes after those",
+                )
+            )
     return damage
 
 
@@ -176,8 +192,11 @@ def _describer(identity: dict[str, list], n: int) -> Callable[[range], str]:
         shown = []
         for row in list(rows)[:3]:
             seed, log = (identity.get(k, [None] * n)[row] for k in ("seed", "log_name"))
-            shown.append(f"episode {row}" + (f", seed {seed}" if seed is not None else "")
-                         + (f", log {log}" if log is not None else ""))  # fmt: skip
+            shown.append(
+                f"episode {row}"
+                + (f", seed {seed}" if seed is not None else "")
+                + (f", log {log}" if log is not None else "")
+            )
         more = f" and {len(rows) - 3} more" if len(rows) > 3 else ""
         return "; ".join(shown) + more
 
@@ -187,8 +206,9 @@ def _describer(identity: dict[str, list], n: int) -> Callable[[range], str]:
 class _Repair:
     """Rewrites damaged chunks from the logs of the episodes they hold."""
 
-    def __init__(self, store: str, group: zarr.Group, n: int, identity: dict[str, list], logs,
-                 meta: StoreMetadata) -> None:  # fmt: skip
+    def __init__(
+        self, store: str, group: zarr.Group, n: int, identity: dict[str, list], logs, meta: StoreMetadata
+    ) -> None:
         self.store, self.group, self.n, self.identity, self.meta = store, group, n, identity, meta
         if logs is None:
             self.logs: list[LogInfo | Path] = []
@@ -250,8 +270,10 @@ class _Repair:
         if item.array.startswith("codes_"):
             self._reset_codes(array, item.rows.start)
             item.repaired = True
-            item.action = (f"its encoding is marked undone from episode {item.rows.start} on; the next "
-                           "`python -m flows.train vqvae` of its model encodes it again")  # fmt: skip
+            item.action = (
+                f"its encoding is marked undone from episode {item.rows.start} on; the next "
+                "`python -m flows.train vqvae` of its model encodes it again"
+            )
             return
         item.unrepaired_because = self._rewrite(array, item.chunk, item.rows)
         item.repaired = item.unrepaired_because is None

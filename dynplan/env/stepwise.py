@@ -44,18 +44,19 @@ def simulate_world(config: RoadConfig, seed: int, n_frames: int | None = None) -
                 speed = cls.speeds[int(draws.speed_rng.integers(0, SPEED_CHOICES))]
                 direction = int(lanes.direction[lane])
                 x0 = 0.0 if direction > 0 else float(W - 1 - cls.length)
-                live.append(dict(row=int(lanes.rows[lane]), x0=x0, x=x0, v=direction * speed, age=0,
-                                 length=cls.length, value=cls.value))  # fmt: skip
+                live.append(
+                    dict(
+                        row=int(lanes.rows[lane]),
+                        x0=x0,
+                        x=x0,
+                        v=direction * speed,
+                        age=0,
+                        length=cls.length,
+                        value=cls.value,
+                    )
+                )
 
-        # The goal moves and reflects off the walls, staying fully inside.
-        goal = goal + goal_velocity
-        for axis in range(2):
-            if goal[axis] > span[axis]:
-                goal[axis] = 2 * span[axis] - goal[axis]
-                goal_velocity[axis] = -goal_velocity[axis]
-            elif goal[axis] < 0:
-                goal[axis] = -goal[axis]
-                goal_velocity[axis] = -goal_velocity[axis]
+        goal = _reflect(goal + goal_velocity, goal_velocity, span)
 
         t = step - W
         if t >= 0:
@@ -67,3 +68,15 @@ def simulate_world(config: RoadConfig, seed: int, n_frames: int | None = None) -
                 frames[t, ob["row"], lo:hi] = ob["value"]
             goals[t] = goal
     return frames, goals
+
+
+def _reflect(goal: np.ndarray, velocity: np.ndarray, span: np.ndarray) -> np.ndarray:
+    """The goal after a move, reflected off the walls so that it stays fully inside (`velocity` flips in place)."""
+    for axis in range(2):
+        if goal[axis] > span[axis]:
+            goal[axis] = 2 * span[axis] - goal[axis]
+            velocity[axis] = -velocity[axis]
+        elif goal[axis] < 0:
+            goal[axis] = -goal[axis]
+            velocity[axis] = -velocity[axis]
+    return goal

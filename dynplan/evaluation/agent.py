@@ -36,13 +36,19 @@ class AgentSpec(Config):
     """One agent. A registered technique sets its own samples and futures; `technique="model"` is the learned world
     model with the spec's. A technique without a world model has no configuration (`model` is None)."""
 
-    technique: str = Field("samples5", description="a registered technique (oracle, mid, samples5, …) or 'model': "
-                           "the learned world model with `samples` and `futures`")  # fmt: skip
+    technique: str = Field(
+        "samples5",
+        description="a registered technique (oracle, mid, samples5, …) or 'model': "
+        "the learned world model with `samples` and `futures`",
+    )
     model: str | None = Field("default", description="world-model configuration of a learned technique")
-    model_dir: str | None = Field(None, description="a pipeline's own weights, MODEL_DIR/<model>/{vqvae,pixelcnn}.pt "
-                                  "(None: the committed ones)")  # fmt: skip
-    caution: dict[str, float] = Field(default_factory=dict, description="what overrides the configuration's own "
-                                      "caution, field → value (occupancy, margin)")  # fmt: skip
+    model_dir: str | None = Field(
+        None, description="a pipeline's own weights, MODEL_DIR/<model>/{vqvae,pixelcnn}.pt (None: the committed ones)"
+    )
+    caution: dict[str, float] = Field(
+        default_factory=dict,
+        description="what overrides the configuration's own caution, field → value (occupancy, margin)",
+    )
     samples: int = Field(0, ge=0, le=64, description="decoder samples merged with the greedy future ('model' only)")
     futures: int = Field(0, ge=0, le=64, description="futures sampled from the prior and merged ('model' only)")
     playouts: int = Field(100, ge=1, le=1_000_000, description="MCTS playouts per decision")
@@ -68,8 +74,9 @@ class AgentSpec(Config):
             raise ValueError(f"technique must be one of {[*TECHNIQUES, LEARNED]}, got {self.technique!r}")
         Caution(**self.caution)  # the overrides' ranges, whatever the technique
         if self.technique != LEARNED and (self.samples or self.futures):
-            raise ValueError(f"samples and futures are technique {self.technique!r}'s own; give them with "
-                             f"technique {LEARNED!r}")  # fmt: skip
+            raise ValueError(
+                f"samples and futures are technique {self.technique!r}'s own; give them with technique {LEARNED!r}"
+            )
         if self.plans_with.world_model:
             if self.model not in models_of(DEFAULT_WORLD):
                 raise ValueError(f"model must be one of {sorted(models_of(DEFAULT_WORLD))}, got {self.model!r}")
@@ -94,8 +101,15 @@ class AgentSpec(Config):
     def for_case(self, technique_name: str, model: str | None, rollout_steps: int | None, seed: int) -> AgentSpec:
         """This spec for one case of an evaluation: its technique, configuration, horizon (None: the random agent,
         which does not search) and seed."""
-        return AgentSpec(**{**self.model_dump(), "technique": technique_name, "model": model,
-                            "rollout_steps": rollout_steps or self.rollout_steps, "seed": seed})  # fmt: skip
+        return AgentSpec(
+            **{
+                **self.model_dump(),
+                "technique": technique_name,
+                "model": model,
+                "rollout_steps": rollout_steps or self.rollout_steps,
+                "seed": seed,
+            }
+        )
 
     def check_weights(self) -> None:
         """Check and load (and cache) a learned agent's checkpoints before anything plays: a CheckpointError names
@@ -122,8 +136,9 @@ class AgentSpec(Config):
         config = MCTSConfig(rollout_steps=self.rollout_steps, playouts=self.playouts)
         return MCTSPlanner(config, agent_speed, max_steps, seed=seed)
 
-    def build(self, world: World, agent_speed: float,
-              planner_seed: int | None = None) -> tuple[Planner, ForwardModel | None]:  # fmt: skip
+    def build(
+        self, world: World, agent_speed: float, planner_seed: int | None = None
+    ) -> tuple[Planner, ForwardModel | None]:
         """The planner and forward model that play the recorded `world` at `agent_speed`."""
         max_steps = RoadConfig.from_dict(world.config.model_dump(), agent_speed=agent_speed).max_steps
         return self.planner(agent_speed, max_steps, planner_seed), self.forward(world)

@@ -76,9 +76,14 @@ def planner_seed(group: str, seed: int) -> int:
     return zlib.crc32(f"{group}/{seed}".encode())
 
 
-def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
-          rollout_steps: tuple[int, ...] = ROLLOUT_STEPS, episodes: int = EVAL_EPISODES,
-          first_seed: int = EVAL_SEED_START, models: tuple[str, ...] = ("default",)) -> list[Case]:  # fmt: skip
+def cases(
+    techniques: list[str],
+    speeds: tuple[float, ...] = AGENT_SPEEDS,
+    rollout_steps: tuple[int, ...] = ROLLOUT_STEPS,
+    episodes: int = EVAL_EPISODES,
+    first_seed: int = EVAL_SEED_START,
+    models: tuple[str, ...] = ("default",),
+) -> list[Case]:
     """Every case of the table: the random agent once per speed, searching techniques once per horizon, learned
     techniques once per world-model configuration in `models`."""
     out = []
@@ -92,12 +97,16 @@ def cases(techniques: list[str], speeds: tuple[float, ...] = AGENT_SPEEDS,
     return out
 
 
-def table1_cases(episodes: int = EVAL_EPISODES, first_seed: int = EVAL_SEED_START,
-                 rollout_steps: tuple[int, ...] = ROLLOUT_STEPS) -> list[Case]:  # fmt: skip
+def table1_cases(
+    episodes: int = EVAL_EPISODES, first_seed: int = EVAL_SEED_START, rollout_steps: tuple[int, ...] = ROLLOUT_STEPS
+) -> list[Case]:
     """Every case of the complete Table 1 (`TABLE1`), learned techniques with every world-model configuration."""
     models = tuple(road_models())
-    return [case for speed, names in TABLE1.items()
-            for case in cases(list(names), (speed,), rollout_steps, episodes, first_seed, models)]  # fmt: skip
+    return [
+        case
+        for speed, names in TABLE1.items()
+        for case in cases(list(names), (speed,), rollout_steps, episodes, first_seed, models)
+    ]
 
 
 class CasePlan(Config):
@@ -109,8 +118,9 @@ class CasePlan(Config):
     agent_speeds: tuple[float, ...] = Field(AGENT_SPEEDS, description="agent speeds: 1.0 (2×) and/or 0.5 (1×)")
     rollout_steps: tuple[int, ...] = Field(ROLLOUT_STEPS, description="horizons k of the searching techniques")
     episodes: int = Field(EVAL_EPISODES, ge=1, le=10_000_000, description="episodes per case")
-    first_seed: int = Field(EVAL_SEED_START, ge=0, le=2**62, description="seed of the first episode (validation: "
-                            "2000000)")  # fmt: skip
+    first_seed: int = Field(
+        EVAL_SEED_START, ge=0, le=2**62, description="seed of the first episode (validation: 2000000)"
+    )
     table1: bool = Field(False, description="every case of the complete Table 1, whatever the lists above say")
 
     @model_validator(mode="after")
@@ -129,8 +139,9 @@ class CasePlan(Config):
         """Every case of the plan."""
         if self.table1:
             return table1_cases(self.episodes, self.first_seed, self.rollout_steps)
-        return cases(list(self.techniques), self.agent_speeds, self.rollout_steps, self.episodes, self.first_seed,
-                     self.models)  # fmt: skip
+        return cases(
+            list(self.techniques), self.agent_speeds, self.rollout_steps, self.episodes, self.first_seed, self.models
+        )
 
     def pairs(self) -> list[tuple[str, str | None]]:
         """Each (technique, world-model configuration) the plan plays (None: a technique without one), in Table 1's
@@ -138,5 +149,8 @@ class CasePlan(Config):
         table = TABLE1.items() if self.table1 else [(speed, self.techniques) for speed in self.agent_speeds]
         models = tuple(road_models()) if self.table1 else self.models
         names = dict.fromkeys(name for _, names in table for name in names)
-        return [(name, model if technique(name).world_model else None) for name in names
-                for model in (models if technique(name).world_model else (None,))]  # fmt: skip
+        return [
+            (name, model if technique(name).world_model else None)
+            for name in names
+            for model in (models if technique(name).world_model else (None,))
+        ]

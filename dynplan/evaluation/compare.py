@@ -50,11 +50,17 @@ def compare_runs(a: Run, b: Run) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     """The command: both runs are read through the store's schema first; a missing run or a damaged or invalid
     manifest or row is one line on stderr and exit status 2."""
-    parser = CommandParser(prog="python -m dynplan.evaluation.compare", description=__doc__,
-                           formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
+    parser = CommandParser(
+        prog="python -m dynplan.evaluation.compare",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     for side in ("a", "b"):
-        parser.add_argument(f"store_{side}", type=PathArgument(PathKind.RESULTS_FOLDER),
-                            help=f"results store {side.upper()} (e.g. datasets/results)")  # fmt: skip
+        parser.add_argument(
+            f"store_{side}",
+            type=PathArgument(PathKind.RESULTS_FOLDER),
+            help=f"results store {side.upper()} (e.g. datasets/results)",
+        )
         parser.add_argument(f"run_{side}", help=f"the run of store {side.upper()}")
     args = parser.parse_args(argv)
     runs = []

@@ -35,8 +35,9 @@ def foreseeable_frames(world: World, t: int, horizon: int) -> np.ndarray:
     return frames[t + 1 :]
 
 
-def miss_causes(truth: np.ndarray, predicted: np.ndarray, foreseeable: np.ndarray,
-                reach: int = DISPLACED_PX) -> dict[str, float]:  # fmt: skip
+def miss_causes(
+    truth: np.ndarray, predicted: np.ndarray, foreseeable: np.ndarray, reach: int = DISPLACED_PX
+) -> dict[str, float]:
     """Each missed obstacle pixel of `predicted` against `truth` (frames (N, H, W)), by cause, as fractions of the
     true obstacle pixels (they sum to the false-negative rate): *unforeseeable* (no obstacle there in the
     `foreseeable` frames: it had not entered the road), *displaced* (a predicted obstacle within `reach` pixels
@@ -54,13 +55,21 @@ def miss_causes(truth: np.ndarray, predicted: np.ndarray, foreseeable: np.ndarra
     total = max(int(true.sum()), 1)
     unforeseeable = missed & ~seen
     displaced = missed & seen & near
-    return {"floor": float((true & ~seen).sum() / total), "unforeseeable": float(unforeseeable.sum() / total),
-            "displaced": float(displaced.sum() / total),
-            "lost": float((missed & seen & ~near).sum() / total)}  # fmt: skip
+    return {
+        "floor": float((true & ~seen).sum() / total),
+        "unforeseeable": float(unforeseeable.sum() / total),
+        "displaced": float(displaced.sum() / total),
+        "lost": float((missed & seen & ~near).sum() / total),
+    }
 
 
-def errors_by_horizon(model: ForwardModel | Callable[[World], ForwardModel], episodes: int = 10, points: int = 10,
-                      horizon: int = HORIZON, first_seed: int = EVAL_SEED_START) -> dict:  # fmt: skip
+def errors_by_horizon(
+    model: ForwardModel | Callable[[World], ForwardModel],
+    episodes: int = 10,
+    points: int = 10,
+    horizon: int = HORIZON,
+    first_seed: int = EVAL_SEED_START,
+) -> dict:
     """Mean false-negative and false-positive rates and goal error (pixels) at each step ahead 1 … horizon, the
     floor of the false negatives (what no model of the past can foresee) and the false negatives by cause
     (`miss_causes`), over `points` decision points of each of `episodes` episodes from seed `first_seed`.
@@ -108,9 +117,12 @@ def plot_errors(curves: dict[str, dict], path: str | os.PathLike) -> None:
 
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
     for name, curve in curves.items():
-        for ax, key, title in zip(axes, ("fn_rate", "fp_rate", "goal_error_px"),
-                                  ("obstacle false negatives", "obstacle false positives", "goal error (px)"),
-                                  strict=True):  # fmt: skip
+        for ax, key, title in zip(
+            axes,
+            ("fn_rate", "fp_rate", "goal_error_px"),
+            ("obstacle false negatives", "obstacle false positives", "goal error (px)"),
+            strict=True,
+        ):
             ax.plot(curve["steps_ahead"], curve[key], marker="o", label=name)
             ax.set_title(title)
             ax.set_xlabel("steps ahead")
@@ -123,8 +135,13 @@ def plot_errors(curves: dict[str, dict], path: str | os.PathLike) -> None:
     plt.close(fig)
 
 
-def figure1(model: ForwardModel, path: str | os.PathLike, seed: int = EVAL_SEED_START, t: int = 40,
-            steps: tuple[int, ...] = (1, 3, 5, 10)) -> None:  # fmt: skip
+def figure1(
+    model: ForwardModel,
+    path: str | os.PathLike,
+    seed: int = EVAL_SEED_START,
+    t: int = 40,
+    steps: tuple[int, ...] = (1, 3, 5, 10),
+) -> None:
     """The paper's Figure 1: per row a step ahead — the oracle frame, the model's, and their error."""
     import matplotlib
 
@@ -139,8 +156,9 @@ def figure1(model: ForwardModel, path: str | os.PathLike, seed: int = EVAL_SEED_
     fig, axes = plt.subplots(len(steps), 3, figsize=(7.5, 2.6 * len(steps)))
     for row, step in enumerate(steps):
         truth, guess = frames[t + step], predicted[step - 1]
-        for col, (image, title) in enumerate([(colorize(truth), f"oracle t+{step}"), (colorize(guess), "model"),
-                                              (error_image(truth, guess), "error")]):  # fmt: skip
+        for col, (image, title) in enumerate(
+            [(colorize(truth), f"oracle t+{step}"), (colorize(guess), "model"), (error_image(truth, guess), "error")]
+        ):
             axes[row, col].imshow(image, interpolation="nearest")
             axes[row, col].set_title(title, fontsize=9)
             axes[row, col].set_axis_off()

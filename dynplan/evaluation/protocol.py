@@ -58,8 +58,7 @@ def run_case(case: Case, log_dir: str | os.PathLike, run: Run, spec: AgentSpec |
     return run_cases([case], log_dir, run, spec)[0]
 
 
-def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run,
-              spec: AgentSpec | None = None) -> list[dict]:  # fmt: skip
+def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run, spec: AgentSpec | None = None) -> list[dict]:
     """Play `cases` against their recorded episodes in one lockstep batch (`run_episodes`: whatever their technique,
     agent speed and k, the learned models on the same weights predict together, and the cases on the same recorded
     world share each prediction of a frame they all see) and append each one's row to `run` the moment its episode
@@ -105,13 +104,18 @@ def run_cases(cases: Sequence[Case], log_dir: str | os.PathLike, run: Run,
         run.append(rows[i])
 
     planners, models = zip(*agents, strict=True)
-    run_episodes(worlds, planners, models, [cases[i].agent_speed for i in members],
-                 [cases[i].rollout_steps or 1 for i in members], on_finish=finish)  # fmt: skip
+    run_episodes(
+        worlds,
+        planners,
+        models,
+        [cases[i].agent_speed for i in members],
+        [cases[i].rollout_steps or 1 for i in members],
+        on_finish=finish,
+    )
     return rows  # type: ignore[return-value]
 
 
-def pending(all_cases: list[Case], run: Run, log_dir: str | os.PathLike,
-            spec: AgentSpec | None = None) -> list[Case]:  # fmt: skip
+def pending(all_cases: list[Case], run: Run, log_dir: str | os.PathLike, spec: AgentSpec | None = None) -> list[Case]:
     """The cases without a row of the same provenance in `run` (what a resumed evaluation still has to play)."""
     spec = spec or AgentSpec()
     return [c for c in all_cases if run.find(asdict(c), case_provenance(c, log_dir, spec)) is None]

@@ -46,13 +46,16 @@ def world_model_entry(model: str, spec: AgentSpec | None = None) -> dict:
     """What a run's manifest records of world-model configuration `model`: its weights and their SHA-256, and the
     caution it plays with (only the settings that are on)."""
     spec = spec or AgentSpec()
-    return {"weights_sha256": _world_model_identity(model, spec.model_dir),
-            "weights": [_shown(p) for p in world_model_paths(model, spec.model_dir)],
-            "caution": caution_for(model, spec.caution).recorded()}  # fmt: skip
+    return {
+        "weights_sha256": _world_model_identity(model, spec.model_dir),
+        "weights": [_shown(p) for p in world_model_paths(model, spec.model_dir)],
+        "caution": caution_for(model, spec.caution).recorded(),
+    }
 
 
-def begin_run(run: Run, role: str, all_cases: list[Case], log_dir: str | os.PathLike, command: str,
-              spec: AgentSpec | None = None) -> dict:  # fmt: skip
+def begin_run(
+    run: Run, role: str, all_cases: list[Case], log_dir: str | os.PathLike, command: str, spec: AgentSpec | None = None
+) -> dict:
     """Write (or extend) `run`'s manifest with what these cases play with: seeds, logs, weights, caution."""
     spec = spec or AgentSpec()
     seeds = sorted({c.seed for c in all_cases})

@@ -67,9 +67,15 @@ class ReplayResult:
         return asdict(self)
 
 
-def replay(log: str | os.PathLike, agent: AgentSpec | None = None, agent_speed: float = 1.0,
-           out: str | os.PathLike | None = None, gif: str | os.PathLike | None = None, live: LiveView | None = None,
-           pace_s: float = 0.0) -> ReplayResult:  # fmt: skip
+def replay(
+    log: str | os.PathLike,
+    agent: AgentSpec | None = None,
+    agent_speed: float = 1.0,
+    out: str | os.PathLike | None = None,
+    gif: str | os.PathLike | None = None,
+    live: LiveView | None = None,
+    pace_s: float = 0.0,
+) -> ReplayResult:
     """Run `agent` (default: the oracle) on the episode recorded in `log` at `agent_speed`: the planner and the
     world model draw from `agent.seed`. `out`: a replay log of the episode (the agent's track, its imagined frames
     and searches); `gif`: its picture; `live`: also publish every frame and decision there as it is planned, at
@@ -94,8 +100,8 @@ def replay(log: str | os.PathLike, agent: AgentSpec | None = None, agent_speed: 
         if live is not None:
             time.sleep(max(0.0, shown[0] + pace_s - time.perf_counter()))
             step = None if len(search) < 2 else step_row(t, search[-2]["action"])
-            live.show(t, world.frames[t], world.goal[t], position, search[-1],
-                      None if prediction is None else prediction.frames, step)  # fmt: skip
+            imagined_now = None if prediction is None else prediction.frames
+            live.show(t, world.frames[t], world.goal[t], position, search[-1], imagined_now, step)
             shown[0] = time.perf_counter()
 
     if live is not None:  # the frames observed before the first decision
@@ -107,14 +113,17 @@ def replay(log: str | os.PathLike, agent: AgentSpec | None = None, agent_speed: 
         track, last = result.track, int(result.track.t[-1])
         live.show(last, world.frames[last], world.goal[last], track.position[-1], step=track.step_row(-1))
     if out is not None:
-        write_episode_log(out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None,
-                          search=search)  # fmt: skip
+        write_episode_log(
+            out, world, agent=result.track, n_frames=config.max_steps, imagined=imagined or None, search=search
+        )
     if gif is not None:
         write_gif(gif, np.stack(panels), fps=8, scale=4)
     ms = np.asarray(result.decision_ms)
-    return ReplayResult(str(log), agent.technique, agent_speed, rollout_steps, result.outcome, result.steps,
-                        round(float(np.median(ms)), 4), round(float(ms.mean()), 4),
-                        None if out is None else str(out), None if gif is None else str(gif))  # fmt: skip
+    timing = (round(float(np.median(ms)), 4), round(float(ms.mean()), 4))
+    paths = (None if out is None else str(out), None if gif is None else str(gif))
+    return ReplayResult(
+        str(log), agent.technique, agent_speed, rollout_steps, result.outcome, result.steps, *timing, *paths
+    )
 
 
 def search_row(t: int, prediction: Prediction | None, decision: Decision) -> dict:
@@ -122,9 +131,15 @@ def search_row(t: int, prediction: Prediction | None, decision: Decision) -> dic
     averaged over the visits), the search's time and the prediction's goal at t + 1 (no `goal` where it shows none)."""
     visits = np.asarray(decision.visits, np.float64)
     value = float((visits * decision.q).sum() / visits.sum()) if visits.sum() else 0.0
-    row = {"t": int(t), "action": int(decision.action), "visits": [int(v) for v in decision.visits],
-           "q": [round(float(q), 6) for q in decision.q], "prior": [round(float(p), 6) for p in decision.prior],
-           "value": round(value, 6), "search_ms": round(float(decision.search_ms), 4)}  # fmt: skip
+    row = {
+        "t": int(t),
+        "action": int(decision.action),
+        "visits": [int(v) for v in decision.visits],
+        "q": [round(float(q), 6) for q in decision.q],
+        "prior": [round(float(p), 6) for p in decision.prior],
+        "value": round(value, 6),
+        "search_ms": round(float(decision.search_ms), 4),
+    }
     if prediction is not None and len(prediction.goal) and not np.isnan(prediction.goal[0, 0]):
         row["goal"] = {"x": float(prediction.goal[0, 1]), "y": float(prediction.goal[0, 0])}
     return row
@@ -135,8 +150,9 @@ def _gif_panel(frames: np.ndarray, t: int, position: np.ndarray, prediction: Pre
     h = min(k, len(frames) - 1 - t) if prediction is None else len(prediction.frames)
     truth = frames[t + h]
     predicted = prediction.frames[h - 1] if prediction is not None else np.zeros_like(truth)
-    return side_by_side([colorize(frames[t], position), colorize(truth), colorize(predicted),
-                         error_image(truth, predicted)])  # fmt: skip
+    return side_by_side(
+        [colorize(frames[t], position), colorize(truth), colorize(predicted), error_image(truth, predicted)]
+    )
 
 
 def default_outputs(log: str | os.PathLike, agent: AgentSpec) -> Path:

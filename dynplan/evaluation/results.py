@@ -55,19 +55,23 @@ def _caution(entry: dict) -> str:
 
 
 def prediction_section(results: Path, docs: Path) -> list[str]:
-    lines = ["## Prediction error against the horizon", "",
-             "Each world model's prediction k steps ahead from 4 observed frames, at 10 decision points of each of 10 "
-             "episodes from the seed the title gives: obstacle false negatives / false positives (% of obstacle / "
-             "free pixels) and the goal's error (pixels between centres); the title gives the *floor*, the false "
-             "negatives no model of the past can avoid (the future repainted with only the obstacles on the road at "
-             "the decision). `mid`: the greedy code future decoded to its most likely frame; `N samples`: "
-             "N decoded samples merged; `N futures`: N code futures sampled from the prior, merged; occupancy and "
-             "margin: the caution (docs/protocol.md §2). A *context bound, N frames* places each obstacle on the "
-             "road, and the goal, where their rounded positions over the last N frames most probably put them "
-             "(`lab.context_bound`): the best one predicted future from N frames can do. Each file "
-             "splits the false negatives by cause: `fn_unforeseeable` (not on the road at the decision), "
-             "`fn_displaced` (a predicted obstacle within 2 pixels along its lane), `fn_lost` (the rest). A title "
-             f"gives the options of `{PREDICTION}` that wrote the file.", ""]  # fmt: skip
+    lines = [
+        "## Prediction error against the horizon",
+        "",
+        "Each world model's prediction k steps ahead from 4 observed frames, at 10 decision points of each of 10 "
+        "episodes from the seed the title gives: obstacle false negatives / false positives (% of obstacle / "
+        "free pixels) and the goal's error (pixels between centres); the title gives the *floor*, the false "
+        "negatives no model of the past can avoid (the future repainted with only the obstacles on the road at "
+        "the decision). `mid`: the greedy code future decoded to its most likely frame; `N samples`: "
+        "N decoded samples merged; `N futures`: N code futures sampled from the prior, merged; occupancy and "
+        "margin: the caution (docs/protocol.md §2). A *context bound, N frames* places each obstacle on the "
+        "road, and the goal, where their rounded positions over the last N frames most probably put them "
+        "(`lab.context_bound`): the best one predicted future from N frames can do. Each file "
+        "splits the false negatives by cause: `fn_unforeseeable` (not on the road at the decision), "
+        "`fn_displaced` (a predicted obstacle within 2 pixels along its lane), `fn_lost` (the rest). A title "
+        f"gives the options of `{PREDICTION}` that wrote the file.",
+        "",
+    ]
     for path in sorted(results.glob("prediction_*.json")):
         lines += _prediction_table(path, json.loads(path.read_text())["curves"])
         model = path.stem.removeprefix("prediction_")
@@ -92,8 +96,10 @@ def _prediction_table(path: Path, curves: dict[str, dict]) -> list[str]:
     header = "| prediction | " + " | ".join(f"k = {k}" for k in HORIZONS) + " |"
     lines = [_prediction_title(path, curves), "", header, "|" + " --- |" * (1 + len(HORIZONS))]
     for name, c in curves.items():
-        cells = [f"{_pct(c['fn_rate'][k - 1])}/{_pct(c['fp_rate'][k - 1])}, {c['goal_error_px'][k - 1]:.2f}"
-                 for k in HORIZONS]  # fmt: skip
+        cells = [
+            f"{_pct(c['fn_rate'][k - 1])}/{_pct(c['fp_rate'][k - 1])}, {c['goal_error_px'][k - 1]:.2f}"
+            for k in HORIZONS
+        ]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return [*lines, ""]
 
@@ -102,9 +108,13 @@ def figure1_section(results: Path, docs: Path) -> list[str]:
     figures = sorted(results.glob("figure1_*.png"))
     if not figures:
         return []
-    lines = ["## Figure 1: imagined futures beside the truth", "",
-             "The paper's Figure 1 for each configuration: observed frames, the true future and the predicted one "
-             "(written by the `--figure` option of the prediction commands above).", ""]  # fmt: skip
+    lines = [
+        "## Figure 1: imagined futures beside the truth",
+        "",
+        "The paper's Figure 1 for each configuration: observed frames, the true future and the predicted one "
+        "(written by the `--figure` option of the prediction commands above).",
+        "",
+    ]
     for figure in figures:
         lines += [f"![{figure.stem}]({os.path.relpath(figure, docs)})", ""]
     return lines
@@ -115,15 +125,19 @@ def deaths_section(results: Path) -> list[str]:
     if not files:
         return []
     ks = sorted({s["k"] for path in files for s in json.loads(path.read_text())["summary"]})
-    lines = ["## Why the learned agents die", "",
-             "Each death replayed and classified (`python -m lab.deaths --technique T --model M "
-             "--agent-speed S [--run RUN] --out FILE`, written to `datasets/results/deaths_*.json`): *off_grid*; "
-             "*foreseen* (the prediction showed the obstacle); *spawned* (it entered the road after the decision, so "
-             "no model could foresee it); *displaced* (predicted a few pixels off along its lane); *lost* (not "
-             f"predicted at all). Cells: deaths of the episodes (`of N`: other than the line's), then by cause, "
-             f"{'/'.join(DEATH_CAUSES)}.", "",
-             "| file `deaths_…` | agent | episodes | " + " | ".join(f"k = {k}" for k in ks) + " |",
-             "|" + " --- |" * (3 + len(ks))]  # fmt: skip
+    lines = [
+        "## Why the learned agents die",
+        "",
+        "Each death replayed and classified (`python -m lab.deaths --technique T --model M "
+        "--agent-speed S [--run RUN] --out FILE`, written to `datasets/results/deaths_*.json`): *off_grid*; "
+        "*foreseen* (the prediction showed the obstacle); *spawned* (it entered the road after the decision, so "
+        "no model could foresee it); *displaced* (predicted a few pixels off along its lane); *lost* (not "
+        f"predicted at all). Cells: deaths of the episodes (`of N`: other than the line's), then by cause, "
+        f"{'/'.join(DEATH_CAUSES)}.",
+        "",
+        "| file `deaths_…` | agent | episodes | " + " | ".join(f"k = {k}" for k in ks) + " |",
+        "|" + " --- |" * (3 + len(ks)),
+    ]
     for path in files:
         data = json.loads(path.read_text())
         by_k = {s["k"]: s for s in data["summary"]}
@@ -209,17 +223,21 @@ def runs_section(results: Path) -> list[str]:
     reference = evaluation.manifest() if evaluation.exists() else {}
     agents = {run.name: _agents(run, run.manifest()) for run in chosen}
     ks = sorted({k for found in agents.values() for by_k in found.values() for k in by_k if k is not None})
-    lines = ["## Validation, candidate and superseded runs", "",
-             "*Validation* runs play the validation episodes (seeds 2,000,000…), where settings were chosen; "
-             "*candidate* runs replay weights or settings not adopted on the evaluation episodes; *superseded* runs "
-             "hold the evaluation of weights or settings since replaced. Cells: goals / timeouts / deaths (`of N`: "
-             "fewer episodes than the run's); ″: as above; weights: `committed` (Table 1's) or those that differ "
-             "(SHA-256 prefix). A run's commands are in `datasets/results/runs/RUN/manifest.json`; a line plays "
-             "again with `python -m flows.evaluate --run RUN --techniques T --models M --agent-speeds S "
-             "--rollout-steps K`, the caution's options, `--model-dir DIR` for other weights and, on validation "
-             "episodes, `--first-seed 2000000 --log-dir datasets/validation_logs`.", "",
-             "| run | role | agent | caution | weights | " + " | ".join(f"k = {k}" for k in ks) + " |",
-             "|" + " --- |" * (5 + len(ks))]  # fmt: skip
+    lines = [
+        "## Validation, candidate and superseded runs",
+        "",
+        "*Validation* runs play the validation episodes (seeds 2,000,000…), where settings were chosen; "
+        "*candidate* runs replay weights or settings not adopted on the evaluation episodes; *superseded* runs "
+        "hold the evaluation of weights or settings since replaced. Cells: goals / timeouts / deaths (`of N`: "
+        "fewer episodes than the run's); ″: as above; weights: `committed` (Table 1's) or those that differ "
+        "(SHA-256 prefix). A run's commands are in `datasets/results/runs/RUN/manifest.json`; a line plays "
+        "again with `python -m flows.evaluate --run RUN --techniques T --models M --agent-speeds S "
+        "--rollout-steps K`, the caution's options, `--model-dir DIR` for other weights and, on validation "
+        "episodes, `--first-seed 2000000 --log-dir datasets/validation_logs`.",
+        "",
+        "| run | role | agent | caution | weights | " + " | ".join(f"k = {k}" for k in ks) + " |",
+        "|" + " --- |" * (5 + len(ks)),
+    ]
     records = _training_records(results)
     for run in chosen:
         lines += _run_lines(run, agents[run.name], reference, records, ks)
@@ -229,20 +247,27 @@ def runs_section(results: Path) -> list[str]:
 def results_page(results: Path, docs: Path, rows: list[dict] | None = None) -> str:
     """docs/results.md from the store at `results` (`rows`: Table 1's aggregated rows, if already at hand)."""
     rows = aggregate(load_results(results)) if rows is None else rows
-    lines = ["# Results", "",
-             f"Generated by `{COMMAND}` from the results store (`datasets/results/`); do not edit by hand. Each "
-             "figure below names the command that measured it; the runs' manifests (`datasets/results/runs/*/"
-             "manifest.json`) hold the weights' SHA-256, the caution, the episode seeds, the logs' checksums and "
-             "every command line that played them.", "",
-             "## Table 1", "",
-             "100 recorded evaluation episodes (seeds 1,000,000…, level 6), 100 playouts per decision; cells: goals / "
-             "timeouts / deaths, and steps (mean ± std over the episodes not died); 2× = 1.0 px/step (T = 203), 1× = "
-             "0.5 px/step (T = 407). `[default]` is this project's world-model configuration, `[paper]` the paper's "
-             "(docs/protocol.md §2); each `(paper)` line is the paper's Table 1. `futures5` (5 code futures sampled "
-             "from the prior) goes beyond the paper. Decision ms: the median over decisions of the search plus the "
-             "decision's share of its lockstep batch's prediction, split by the grids each case asked for (docs/"
-             "protocol.md §4), played by two single-thread workers on a 2-core CPU.", "",
-             render_markdown(rows).rstrip("\n"), ""]  # fmt: skip
+    lines = [
+        "# Results",
+        "",
+        f"Generated by `{COMMAND}` from the results store (`datasets/results/`); do not edit by hand. Each "
+        "figure below names the command that measured it; the runs' manifests (`datasets/results/runs/*/"
+        "manifest.json`) hold the weights' SHA-256, the caution, the episode seeds, the logs' checksums and "
+        "every command line that played them.",
+        "",
+        "## Table 1",
+        "",
+        "100 recorded evaluation episodes (seeds 1,000,000…, level 6), 100 playouts per decision; cells: goals / "
+        "timeouts / deaths, and steps (mean ± std over the episodes not died); 2× = 1.0 px/step (T = 203), 1× = "
+        "0.5 px/step (T = 407). `[default]` is this project's world-model configuration, `[paper]` the paper's "
+        "(docs/protocol.md §2); each `(paper)` line is the paper's Table 1. `futures5` (5 code futures sampled "
+        "from the prior) goes beyond the paper. Decision ms: the median over decisions of the search plus the "
+        "decision's share of its lockstep batch's prediction, split by the grids each case asked for (docs/"
+        "protocol.md §4), played by two single-thread workers on a 2-core CPU.",
+        "",
+        render_markdown(rows).rstrip("\n"),
+        "",
+    ]
     lines += runs_section(results)
     lines += prediction_section(results, docs)
     lines += figure1_section(results, docs)
@@ -326,11 +351,16 @@ def _check_loss(pages: dict[Path, str], results: Path) -> None:
         lost = lost_entries(old, text)
         if lost:
             more = f"; and {len(lost) - 2} more" if len(lost) > 2 else ""
-            found.append(f"{shown(path)} would lose {len(lost)} of its {len(page_entries(old))} entries "
-                         f"({'; '.join(lost[:2])}{more})")  # fmt: skip
+            found.append(
+                f"{shown(path)} would lose {len(lost)} of its {len(page_entries(old))} entries "
+                f"({'; '.join(lost[:2])}{more})"
+            )
     if found:
-        raise ResultsError(f"the results store {shown(results)} shows less than the pages: " + " | ".join(found)
-                           + "; check --results-dir, or pass --allow-loss to write them anyway")  # fmt: skip
+        raise ResultsError(
+            f"the results store {shown(results)} shows less than the pages: "
+            + " | ".join(found)
+            + "; check --results-dir, or pass --allow-loss to write them anyway"
+        )
 
 
 def publish(results: Path, docs: Path, readme: Path | None = None, allow_loss: bool = False) -> list[Path]:
@@ -347,8 +377,11 @@ def publish(results: Path, docs: Path, readme: Path | None = None, allow_loss: b
             raise ResultsError(f"--readme {shown(readme)}: no such file")
     rows = aggregate(load_results(results))
     table_json, table_md = table_files(rows)
-    pages = {results / "table1.json": table_json, results / "table1.md": table_md,
-             docs / "results.md": results_page(results, docs, rows)}  # fmt: skip
+    pages = {
+        results / "table1.json": table_json,
+        results / "table1.md": table_md,
+        docs / "results.md": results_page(results, docs, rows),
+    }
     if readme is not None:
         try:
             pages[readme] = readme_with_table(readme.read_text(), rows)
@@ -361,15 +394,23 @@ def publish(results: Path, docs: Path, readme: Path | None = None, allow_loss: b
 
 def _parser() -> CommandParser:
     parser = CommandParser(prog=COMMAND, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--results-dir", type=PathArgument(PathKind.RESULTS_FOLDER),
-                        default=str(ROOT / "datasets" / "results"),
-                        help="the results store (an existing folder)")  # fmt: skip
-    parser.add_argument("--docs", type=PathArgument(PathKind.OUTPUT_FOLDER), default=str(ROOT / "docs"),
-                        help="where results.md goes")  # fmt: skip
-    parser.add_argument("--readme", default=str(ROOT / "README.md"), help="the README whose Table 1 to update "
-                        "('' to leave it)")  # fmt: skip
-    parser.add_argument("--allow-loss", action="store_true", help="write the pages even where they would show "
-                        "fewer rows, episodes or images than they do now")  # fmt: skip
+    parser.add_argument(
+        "--results-dir",
+        type=PathArgument(PathKind.RESULTS_FOLDER),
+        default=str(ROOT / "datasets" / "results"),
+        help="the results store (an existing folder)",
+    )
+    parser.add_argument(
+        "--docs", type=PathArgument(PathKind.OUTPUT_FOLDER), default=str(ROOT / "docs"), help="where results.md goes"
+    )
+    parser.add_argument(
+        "--readme", default=str(ROOT / "README.md"), help="the README whose Table 1 to update ('' to leave it)"
+    )
+    parser.add_argument(
+        "--allow-loss",
+        action="store_true",
+        help="write the pages even where they would show fewer rows, episodes or images than they do now",
+    )
     return parser
 
 
@@ -379,8 +420,12 @@ def main(argv: list[str] | None = None) -> Path:
     parser = _parser()
     args = parser.parse_args(argv)
     try:
-        written = publish(Path(args.results_dir), Path(args.docs), Path(args.readme) if args.readme else None,
-                          allow_loss=args.allow_loss)  # fmt: skip
+        written = publish(
+            Path(args.results_dir),
+            Path(args.docs),
+            Path(args.readme) if args.readme else None,
+            allow_loss=args.allow_loss,
+        )
     except InputError as error:  # StoreError, ResultsError, a table that mixes provenance: all before writing
         parser.error(str(error))
     print("wrote " + ", ".join(map(shown, written)))

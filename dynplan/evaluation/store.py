@@ -77,8 +77,13 @@ def code_version() -> str:
     """The package version and, in a git checkout, the commit (with `-dirty` when tracked files changed)."""
     root = Path(__file__).resolve().parents[2]
     try:
-        commit = subprocess.run(["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=12"],
-                                capture_output=True, text=True, timeout=10, check=True).stdout.strip()  # fmt: skip
+        commit = subprocess.run(
+            ["git", "-C", str(root), "describe", "--always", "--dirty", "--abbrev=12"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
     except (OSError, subprocess.SubprocessError):
         commit = ""
     return f"dynplan {__version__}" + (f" ({commit})" if commit else "")
@@ -103,8 +108,10 @@ def same_provenance(row: Mapping, expected: Mapping, kind: RunKind | None = None
 
 def check_run_name(name: str) -> str:
     if not isinstance(name, str) or not _RUN_NAME.fullmatch(name):
-        raise StoreError(f"run name {name!r} is invalid: letters, digits, '_', '.', '-' (up to 100, not starting "
-                         f"with a punctuation mark)")  # fmt: skip
+        raise StoreError(
+            f"run name {name!r} is invalid: letters, digits, '_', '.', '-' (up to 100, not starting "
+            f"with a punctuation mark)"
+        )
     return name
 
 
@@ -161,14 +168,18 @@ class Run:
             raise StoreError(f"{path}: not a {FORMAT} manifest (format {found!r})")
         kind = kind_of(manifest.get("world"), self.manifest_path)
         if self._kind is not None and kind.world != self._kind.world:
-            raise StoreError(f"{path}: run {self.name!r} holds {kind.world} episodes, not {self._kind.world}'s; name "
-                             "another run with --run")  # fmt: skip
+            raise StoreError(
+                f"{path}: run {self.name!r} holds {kind.world} episodes, not {self._kind.world}'s; name "
+                "another run with --run"
+            )
         problem = first_problem(kind.manifest_schema, manifest)
         if problem is not None:
             raise StoreError(f"{path}:{line_of(text, problem[0])}: {problem[1]}")
         if manifest["name"] != self.name:
-            raise StoreError(f"{path}:{line_of(text, ('name',))}: field 'name' = {manifest['name']!r} is not its "
-                             f"run's folder name {self.name!r}")  # fmt: skip
+            raise StoreError(
+                f"{path}:{line_of(text, ('name',))}: field 'name' = {manifest['name']!r} is not its "
+                f"run's folder name {self.name!r}"
+            )
         return manifest
 
     def write_manifest(self, manifest: Mapping) -> None:
@@ -180,8 +191,15 @@ class Run:
             raise StoreError(f"{shown(self.manifest_path)}: the manifest to write is invalid: {problem[1]}")
         write_bytes_atomic(self.manifest_path, (json.dumps(manifest, indent=1) + "\n").encode())
 
-    def begin(self, role: str, playouts: int, seeds: Iterable[int], log_sha256: Mapping[int, str | None],
-              world_models: Mapping[str, Mapping], command: str) -> dict:  # fmt: skip
+    def begin(
+        self,
+        role: str,
+        playouts: int,
+        seeds: Iterable[int],
+        log_sha256: Mapping[int, str | None],
+        world_models: Mapping[str, Mapping],
+        command: str,
+    ) -> dict:
         """Create the run, or extend its manifest with what this invocation plays: more seeds and logs, a world
         model, or new weights / caution for one (whose earlier rows then go stale). A run's role and playouts do
         not change (another value is refused). Returns the manifest written."""
@@ -194,14 +212,26 @@ class Run:
         if self.exists():
             manifest = self.manifest()
             if manifest["role"] != role:
-                raise StoreError(f"{self.manifest_path}: run {self.name!r} has role {manifest['role']}; this "
-                                 f"invocation plays a {role} run: name another run with --run")  # fmt: skip
+                raise StoreError(
+                    f"{self.manifest_path}: run {self.name!r} has role {manifest['role']}; this "
+                    f"invocation plays a {role} run: name another run with --run"
+                )
         else:
-            manifest = {"format": FORMAT, "name": self.name, "role": role, "playouts": playouts, "episode_seeds": [],
-                        "log_sha256": {}, "world_models": {}, "invocations": []}  # fmt: skip
+            manifest = {
+                "format": FORMAT,
+                "name": self.name,
+                "role": role,
+                "playouts": playouts,
+                "episode_seeds": [],
+                "log_sha256": {},
+                "world_models": {},
+                "invocations": [],
+            }
         if manifest["playouts"] != playouts:
-            raise StoreError(f"{self.manifest_path}: run {self.name!r} plays {manifest['playouts']} playouts per "
-                             f"decision, not {playouts}: name another run with --run")  # fmt: skip
+            raise StoreError(
+                f"{self.manifest_path}: run {self.name!r} plays {manifest['playouts']} playouts per "
+                f"decision, not {playouts}: name another run with --run"
+            )
         manifest["episode_seeds"] = sorted(set(manifest["episode_seeds"]) | set(seeds))
         manifest["log_sha256"] = {**manifest["log_sha256"], **{str(s): h for s, h in log_sha256.items()}}
         manifest["world_models"] = {**manifest["world_models"], **{m: dict(v) for m, v in world_models.items()}}
@@ -321,8 +351,16 @@ def _in_the_manifests_seeds(manifest: Mapping, row: Mapping) -> bool:
 
 
 #: The road's runs: Table 1's cases (technique, world model, speed, k, seed) with their playouts, logs and weights.
-ROAD_RUNS = RunKind(f"{DEFAULT_WORLD}-v1", ManifestSchema, RowSchema, CASE_KEYS, PROVENANCE_KEYS, RESULT_KEYS,
-                    expected_provenance, _in_the_manifests_seeds)  # fmt: skip
+ROAD_RUNS = RunKind(
+    f"{DEFAULT_WORLD}-v1",
+    ManifestSchema,
+    RowSchema,
+    CASE_KEYS,
+    PROVENANCE_KEYS,
+    RESULT_KEYS,
+    expected_provenance,
+    _in_the_manifests_seeds,
+)
 
 
 def _world_field(path: Path) -> str | None:
@@ -365,13 +403,21 @@ def _parse(data: bytes, path: Path, kind: RunKind, first_line: int = 1) -> list[
                 raise ValueError("not a JSON object")
         except (ValueError, RecursionError) as error:  # UnicodeDecodeError is a ValueError
             if last:
-                warnings.warn(f"{shown(path)}: line {number} is torn (a writer stopped mid-row; {len(line)} bytes, "
-                              f"{error}); its episode will be played again", TornRowWarning, stacklevel=3)  # fmt: skip
+                warnings.warn(
+                    f"{shown(path)}: line {number} is torn (a writer stopped mid-row; {len(line)} bytes, "
+                    f"{error}); its episode will be played again",
+                    TornRowWarning,
+                    stacklevel=3,
+                )
                 continue
             raise StoreError(f"{shown(path)}:{number}: not a JSON row ({error}); the file is damaged") from None
         if last:
-            warnings.warn(f"{shown(path)}: line {number} has no newline (a writer stopped before finishing it); its "
-                          f"episode will be played again", TornRowWarning, stacklevel=3)  # fmt: skip
+            warnings.warn(
+                f"{shown(path)}: line {number} has no newline (a writer stopped before finishing it); its "
+                f"episode will be played again",
+                TornRowWarning,
+                stacklevel=3,
+            )
             continue
         problem = first_problem(kind.row_schema, row)
         if problem is not None:
@@ -380,8 +426,9 @@ def _parse(data: bytes, path: Path, kind: RunKind, first_line: int = 1) -> list[
     return rows
 
 
-def _merge(seen: dict[str, tuple[int, dict]], rows: list[tuple[int, dict]], path: Path,
-           kind: RunKind) -> list[tuple[int, dict]]:  # fmt: skip
+def _merge(
+    seen: dict[str, tuple[int, dict]], rows: list[tuple[int, dict]], path: Path, kind: RunKind
+) -> list[tuple[int, dict]]:
     """Add `rows` (line, row) to `seen` (identity → line, row) and return those added: a line repeated exactly is
     read once; another row of a case and provenance already seen is a StoreError naming both lines (which one
     counts would otherwise depend on their order)."""
@@ -395,11 +442,14 @@ def _merge(seen: dict[str, tuple[int, dict]], rows: list[tuple[int, dict]], path
         elif first[1] != row:
             other = first[1]
             fields = sorted(k for k in other.keys() | row.keys() if other.get(k) != row.get(k))
-            differ = ", ".join(k if isinstance(row.get(k), list) else f"{k} {other.get(k)!r} vs {row.get(k)!r}"
-                               for k in fields)  # fmt: skip
+            differ = ", ".join(
+                k if isinstance(row.get(k), list) else f"{k} {other.get(k)!r} vs {row.get(k)!r}" for k in fields
+            )
             case = " ".join(f"{k}={v!r}" for k, v in zip(kind.case_keys, kind.case_key(row), strict=True))
-            raise StoreError(f"{shown(path)}:{number}: case {case} has another result with the same provenance "
-                             f"at line {first[0]} ({differ}); keep one of the two lines")  # fmt: skip
+            raise StoreError(
+                f"{shown(path)}:{number}: case {case} has another result with the same provenance "
+                f"at line {first[0]} ({differ}); keep one of the two lines"
+            )
     return added
 
 
@@ -408,8 +458,10 @@ def runs(root: str | os.PathLike, role: str | None = None) -> list[Run]:
     beside them is a StoreError: its rows would vanish from every table without a word."""
     for orphan in sorted(Path(root).glob("runs/*/episodes.jsonl")):
         if not (orphan.parent / "manifest.json").is_file():
-            raise StoreError(f"{shown(orphan)}: its run has episodes and no manifest.json; restore the manifest or "
-                             f"move the folder out of {shown(Path(root) / 'runs')}")  # fmt: skip
+            raise StoreError(
+                f"{shown(orphan)}: its run has episodes and no manifest.json; restore the manifest or "
+                f"move the folder out of {shown(Path(root) / 'runs')}"
+            )
     found = []
     for path in sorted(Path(root).glob("runs/*/manifest.json")):
         try:
@@ -436,8 +488,10 @@ def evaluation_rows(root: str | os.PathLike) -> list[dict]:
         for row in run.current():
             key = case_key(row)
             if key in seen:
-                raise StoreError(f"{root}: episode {dict(zip(CASE_KEYS, key, strict=True))} is in two evaluation runs, "
-                                 f"{seen[key]!r} and {run.name!r}; mark one as another role")  # fmt: skip
+                raise StoreError(
+                    f"{root}: episode {dict(zip(CASE_KEYS, key, strict=True))} is in two evaluation runs, "
+                    f"{seen[key]!r} and {run.name!r}; mark one as another role"
+                )
             seen[key] = run.name
             out.append(row)
     return out

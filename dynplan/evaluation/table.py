@@ -30,8 +30,10 @@ def _check_provenance(label: str, episodes: list[dict]) -> None:
     for field in SHARED:
         values = {json.dumps(e.get(field)) for e in episodes}
         if len(values) > 1:
-            raise StoreError(f"the results of {label} mix {field} values {sorted(values)}: a row of Table 1 counts "
-                             f"episodes played the same way only")  # fmt: skip
+            raise StoreError(
+                f"the results of {label} mix {field} values {sorted(values)}: a row of Table 1 counts "
+                f"episodes played the same way only"
+            )
     seeds = [e.get("seed") for e in episodes]
     twice = sorted({s for s in seeds if s is not None and seeds.count(s) > 1})
     if twice:
@@ -57,22 +59,24 @@ def aggregate(results: list[dict]) -> list[dict]:
         outcomes = [e["outcome"] for e in episodes]
         survived = np.array([e["steps"] for e in episodes if e["outcome"] != "death"], dtype=np.float64)
         times = np.concatenate([np.asarray(e["decision_ms"], dtype=np.float64) for e in episodes])
-        rows.append({
-            "technique": technique,
-            "model": model,
-            "agent_speed": speed,
-            "rollout_steps": k,
-            "episodes": len(episodes),
-            "playouts": playouts.pop(),
-            "G": outcomes.count("goal"),
-            "T": outcomes.count("timeout"),
-            "D": outcomes.count("death"),
-            "S_mean": round(float(survived.mean()), 1) if len(survived) else None,
-            "S_std": round(float(survived.std()), 1) if len(survived) else None,
-            "decision_ms_median": round(float(np.median(times)), 4) if len(times) else None,
-            "decision_ms_mean": round(float(times.mean()), 4) if len(times) else None,
-            "wall_s": round(sum(e["wall_s"] for e in episodes), 1),
-        })  # fmt: skip
+        rows.append(
+            {
+                "technique": technique,
+                "model": model,
+                "agent_speed": speed,
+                "rollout_steps": k,
+                "episodes": len(episodes),
+                "playouts": playouts.pop(),
+                "G": outcomes.count("goal"),
+                "T": outcomes.count("timeout"),
+                "D": outcomes.count("death"),
+                "S_mean": round(float(survived.mean()), 1) if len(survived) else None,
+                "S_std": round(float(survived.std()), 1) if len(survived) else None,
+                "decision_ms_median": round(float(np.median(times)), 4) if len(times) else None,
+                "decision_ms_mean": round(float(times.mean()), 4) if len(times) else None,
+                "wall_s": round(sum(e["wall_s"] for e in episodes), 1),
+            }
+        )
     return sorted(rows, key=_sort_key)
 
 
@@ -108,8 +112,9 @@ def render_markdown(rows: list[dict]) -> str:
             paper = PAPER_RANDOM_GOALS.get(speed)
             note = f" (paper: {paper} goals)" if paper is not None else ""
             cell = _cell(r0["G"], r0["T"], r0["D"], r0["S_mean"], r0["S_std"]) + note
-            lines.append(f"| {label} | " + " | ".join([cell] + ["″"] * (len(ks) - 1)) +
-                         f" | {_ms(r0['decision_ms_median'])} |")  # fmt: skip
+            lines.append(
+                f"| {label} | " + " | ".join([cell] + ["″"] * (len(ks) - 1)) + f" | {_ms(r0['decision_ms_median'])} |"
+            )
             continue
         cells, paper_cells, times = [], [], []
         for k in ks:

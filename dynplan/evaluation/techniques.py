@@ -49,20 +49,29 @@ class Technique:
     futures: int = 0  # code futures sampled from the prior and merged (learned techniques)
 
 
-def learned_model(model: str, samples: int, seed: int, futures: int = 0, model_dir: str | os.PathLike | None = None,
-                  caution: Mapping[str, float] | None = None, device: str = "cpu") -> ForwardModel:  # fmt: skip
+def learned_model(
+    model: str,
+    samples: int,
+    seed: int,
+    futures: int = 0,
+    model_dir: str | os.PathLike | None = None,
+    caution: Mapping[str, float] | None = None,
+    device: str = "cpu",
+) -> ForwardModel:
     """The learned forward model of configuration `model` (weights loaded once per content; see
     `world_model_paths`), with the configuration's own caution except where `caution` (field → value) overrides
     it, generating batches on `device`."""
     parts = world_model_parts(world_model_paths(model, model_dir), model)
-    return LearnedWorldModel(*parts, samples=samples, futures=futures, seed=seed, caution=caution_for(model, caution),
-                             device=device)  # fmt: skip
+    return LearnedWorldModel(
+        *parts, samples=samples, futures=futures, seed=seed, caution=caution_for(model, caution), device=device
+    )
 
 
 def _learned(samples: int, futures: int) -> Callable[[AgentInputs], ForwardModel]:
     def build(inputs: AgentInputs) -> ForwardModel:
-        return learned_model(inputs.model, samples, inputs.seed, futures, inputs.model_dir, inputs.caution,
-                             inputs.device)  # fmt: skip
+        return learned_model(
+            inputs.model, samples, inputs.seed, futures, inputs.model_dir, inputs.caution, inputs.device
+        )
 
     return build
 
@@ -91,8 +100,7 @@ def learned_technique(name: str, samples: int = 0, futures: int = 0, description
     """A technique that plans with a world model, merging `samples` decoder samples and `futures` code futures
     with the greedy future (both 0: the greedy future's mid-point frames, the paper's Mid)."""
     description = description or f"learned model, {samples} samples, {futures} futures"
-    return Technique(name, description, _learned(samples, futures), world_model=True, samples=samples,
-                     futures=futures)  # fmt: skip
+    return Technique(name, description, _learned(samples, futures), world_model=True, samples=samples, futures=futures)
 
 
 for _t in (

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import threading
+from time import monotonic, sleep
 
 import numpy as np
 from foxglove_schemas_protobuf.ImageAnnotations_pb2 import ImageAnnotations
@@ -36,6 +37,8 @@ from dynplan.logs.writer import annotations, image_message, imagined_strip, pose
 
 #: The Foxglove app's default WebSocket port.
 DEFAULT_PORT = 8765
+#: Seconds without a new subscription after which a viewer is taken to have subscribed to all it asked for.
+SETTLE_S = 0.25
 
 
 class LiveView:
@@ -44,15 +47,17 @@ class LiveView:
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_PORT):
         foxglove = require("foxglove", "live", "the live view")
-        self._watched = threading.Event()
+        self._watched, self._subscribed_at = threading.Event(), 0.0
 
         class Listener:  # the server calls it from its own threads
             def on_subscribe(_, client: object, channel: object) -> None:
+                self._subscribed_at = monotonic()
                 self._watched.set()
 
         self._context = context = foxglove.Context()  # its own channels: views in one process share no topics
-        self.server = foxglove.start_server(name="dynplan", host=host, port=port, server_listener=Listener(),
-                                            context=context)  # fmt: skip
+        self.server = foxglove.start_server(
+            name="dynplan", host=host, port=port, server_listener=Listener(), context=context
+        )
         self.host, self.port = host, int(self.server.port)
 
         def protobuf(topic: str, message: type) -> object:
@@ -75,13 +80,27 @@ class LiveView:
     def url(self) -> str:
         return f"ws://{self.host}:{self.port}"
 
-    def wait_for_viewer(self, timeout: float) -> bool:
-        """Whether a client subscribed to a topic within `timeout` seconds (at once if one has already)."""
-        return self._watched.wait(timeout)
+    def wait_for_viewer(self, timeout: float, settle: float = SETTLE_S) -> bool:
+        """Whether a client subscribed to a topic within `timeout` seconds (at once if one has already); then until
+        `settle` seconds pass without another subscription (a viewer subscribes to its panels' topics one after
+        another), within the timeout, so that the first messages reach every topic it asked for."""
+        end = monotonic() + timeout
+        if not self._watched.wait(timeout):
+            return False
+        while (quiet := monotonic() - self._subscribed_at) < settle and monotonic() < end:
+            sleep(max(0.0, min(settle - quiet, end - monotonic())))
+        return True
 
-    def show(self, t: int, frame: np.ndarray, goal: np.ndarray, position: np.ndarray | None = None,
-             decision: dict | None = None, imagined: np.ndarray | None = None,
-             step: dict | None = None) -> None:  # fmt: skip
+    def show(
+        self,
+        t: int,
+        frame: np.ndarray,
+        goal: np.ndarray,
+        position: np.ndarray | None = None,
+        decision: dict | None = None,
+        imagined: np.ndarray | None = None,
+        step: dict | None = None,
+    ) -> None:
         """Publish frame `t` (H, W) and the goal; with the agent's `position`, its pose, view and the annotations
         over the frame; a `decision` (a /planner/search row), the `imagined` frames (k, H, W) it planned on, and
         the `step` that led to t (an /agent/step row: t, action, reward, outcome)."""

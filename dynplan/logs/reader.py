@@ -212,9 +212,12 @@ def read_episode_log(path: str | os.PathLike) -> EpisodeLog:
     except (KeyError, ValueError, TypeError, ConfigError) as error:
         raise LogError(path, f"bad '{METADATA_NAME}' metadata: {error}") from None
     if (height, width) != (config.height, config.width) or n_frames < 1 or agent_start.shape != (2,):
-        raise LogError(path, f"bad '{METADATA_NAME}' metadata: height {height}, width {width}, n_frames {n_frames} "
-                             f"and agent_start {meta['agent_start']} do not describe an episode of its config "
-                             f"({config.height}×{config.width}, at least 1 frame, a start [y, x])")  # fmt: skip
+        raise LogError(
+            path,
+            f"bad '{METADATA_NAME}' metadata: height {height}, width {width}, n_frames {n_frames} "
+            f"and agent_start {meta['agent_start']} do not describe an episode of its config "
+            f"({config.height}×{config.width}, at least 1 frame, a start [y, x])",
+        )
 
     frames, goal = _world_topics(scan, entry, config, n_frames)
     agent = _agent_track(scan) if TOPIC_AGENT_POSE in listing.topics else None
@@ -240,9 +243,12 @@ def _world_topics(scan: _Scan, entry: World, config: Config, n_frames: int) -> t
         raise LogError(path, f"has {len(images)} frames{poses}; metadata says {n_frames}")
     for t, im in enumerate(images):
         if (im.height, im.width, im.encoding, im.step, len(im.data)) != (height, width, "mono8", width, height * width):
-            raise LogError(path, f"{TOPIC_FRAME} message {t} is {im.height}×{im.width} {im.encoding} (step {im.step}, "
-                                 f"{len(im.data)} bytes), expected {height}×{width} mono8 (step {width}, "
-                                 f"{height * width} bytes)")  # fmt: skip
+            raise LogError(
+                path,
+                f"{TOPIC_FRAME} message {t} is {im.height}×{im.width} {im.encoding} (step {im.step}, "
+                f"{len(im.data)} bytes), expected {height}×{width} mono8 (step {width}, "
+                f"{height * width} bytes)",
+            )
     frames = np.frombuffer(b"".join(im.data for im in images), np.uint8).reshape(n_frames, height, width)[:, ::-1]
     values = sorted(set(entry.pixel_values(config).values()))
     allowed = np.zeros(256, dtype=bool)
@@ -250,8 +256,11 @@ def _world_topics(scan: _Scan, entry: World, config: Config, n_frames: int) -> t
     outside = ~allowed[frames]
     if outside.any():
         t, y, x = (int(i) for i in np.argwhere(outside)[0])
-        raise LogError(path, f"{TOPIC_FRAME} message {t} has pixel value {frames[t, y, x]} at (y {y}, x {x}); "
-                             f"the world's pixel values are {', '.join(map(str, values))}")  # fmt: skip
+        raise LogError(
+            path,
+            f"{TOPIC_FRAME} message {t} has pixel value {frames[t, y, x]} at (y {y}, x {x}); "
+            f"the world's pixel values are {', '.join(map(str, values))}",
+        )
     if not entry.has_goal:
         return np.ascontiguousarray(frames), None
     goal = np.array([(g.pose.position.y, g.pose.position.x) for g in goals], dtype=np.float64)
@@ -306,8 +315,11 @@ def _imagined(scan: _Scan, height: int, width: int) -> dict[int, np.ndarray]:
     imagined = {}
     for i, (record, im) in enumerate(zip(scan.messages[TOPIC_IMAGINED], strips, strict=True)):
         if im.height != height or im.width % width or not im.width or len(im.data) != im.height * im.width:
-            raise LogError(scan.listing.path, f"{TOPIC_IMAGINED} message {i} is {im.height}×{im.width} with "
-                                              f"{len(im.data)} bytes, expected {height}×(k·{width}) mono8")  # fmt: skip
+            raise LogError(
+                scan.listing.path,
+                f"{TOPIC_IMAGINED} message {i} is {im.height}×{im.width} with "
+                f"{len(im.data)} bytes, expected {height}×(k·{width}) mono8",
+            )
         strip = np.frombuffer(im.data, np.uint8).reshape(im.height, im.width)[::-1]
         t = int((record.log_time - EPOCH_NS) // FRAME_PERIOD_NS)
         imagined[t] = strip.reshape(height, im.width // width, width).transpose(1, 0, 2).copy()

@@ -39,8 +39,11 @@ def recording_problem(path: str | os.PathLike, log: EpisodeLog, world: Recording
         keys = sorted(k for k in set(ours) | set(theirs) if ours.get(k) != theirs.get(k))
         return f"its record differs from the seed's in {', '.join(keys)}"
     goal = None if world.goal is None else world.goal[: log.n_frames]
-    for name, (a, b) in {"frames": (log.frames, world.frames[: log.n_frames]), "goal track": (log.goal, goal),
-                         "agent start": (log.agent_start, world.agent_start)}.items():  # fmt: skip
+    for name, (a, b) in {
+        "frames": (log.frames, world.frames[: log.n_frames]),
+        "goal track": (log.goal, goal),
+        "agent start": (log.agent_start, world.agent_start),
+    }.items():
         if not (a is None and b is None) and (a is None or b is None or not np.array_equal(a, b)):
             return f"its {name} differ from the seed's"
     return None
@@ -59,8 +62,9 @@ def check_recorded(log: EpisodeLog) -> EpisodeLog:
     if problem:
         option = f" --world {entry.name}" if entry.name != DEFAULT_WORLD else ""
         again = f"python -m flows.collect{option} --out {log.path.parent} --seed {log.seed} --episodes 1"
-        raise LogError(log.path, f"is not what seed {log.seed} records: {problem} (the file is damaged; record it "
-                       f"again: {again})")  # fmt: skip
+        raise LogError(
+            log.path, f"is not what seed {log.seed} records: {problem} (the file is damaged; record it again: {again})"
+        )
     return log
 
 

@@ -66,8 +66,15 @@ def image_message(t: int, frame: np.ndarray) -> RawImage:
     """Frame `t` (H, W) uint8 as a foxglove.RawImage (mono8)."""
     H, W = frame.shape
     # Images are stored top row first; the world's row 0 is the bottom.
-    return RawImage(timestamp=_stamp(t), frame_id=FRAME_ID, width=W, height=H, encoding="mono8", step=W,
-                    data=np.ascontiguousarray(frame[::-1]).tobytes())  # fmt: skip
+    return RawImage(
+        timestamp=_stamp(t),
+        frame_id=FRAME_ID,
+        width=W,
+        height=H,
+        encoding="mono8",
+        step=W,
+        data=np.ascontiguousarray(frame[::-1]).tobytes(),
+    )
 
 
 def imagined_strip(frames: np.ndarray) -> np.ndarray:
@@ -96,9 +103,14 @@ def episode_metadata(world: Recording, n_frames: int, kind: str) -> dict[str, st
     }
 
 
-def write_episode_log(path: str | os.PathLike, world: Recording, agent: AgentTrack | None = None,
-                      n_frames: int | None = None, imagined: dict[int, np.ndarray] | None = None,
-                      search: list[dict] | None = None) -> Path:  # fmt: skip
+def write_episode_log(
+    path: str | os.PathLike,
+    world: Recording,
+    agent: AgentTrack | None = None,
+    n_frames: int | None = None,
+    imagined: dict[int, np.ndarray] | None = None,
+    search: list[dict] | None = None,
+) -> Path:
     """Write `world`'s first `n_frames` frames (default all) and goal track (if it has one) to `path`, plus, for a
     replay, the `agent`'s track (pose, step, its view: the frame with the agent drawn, and annotations over the
     frame), the planner's `imagined` frames per decision ({t: (k, H, W) predicted frames t+1 … t+k}) and its
@@ -138,21 +150,29 @@ def write_episode_log(path: str | os.PathLike, world: Recording, agent: AgentTra
                 goal = None if world.goal is None else world.goal[t]
                 marks = annotations(t, agent.position[i], goal, world.config.height, decisions.get(t))
                 writer.add_message(annotation_channel, time, marks.SerializeToString(), time, i)
-        if search:
-            search_json = json.dumps(SEARCH_JSON_SCHEMA).encode()
-            search_schema = writer.register_schema("dynplan.Search", "jsonschema", search_json)
-            search_channel = writer.register_channel(TOPIC_SEARCH, "json", search_schema)
-            for i, row in enumerate(search):
-                time = log_time(int(row["t"]))
-                writer.add_message(search_channel, time, json.dumps(row).encode(), time, i)
-        if imagined:
-            imagined_channel = writer.register_channel(TOPIC_IMAGINED, "protobuf", frame_schema)
-            for i, (t, frames) in enumerate(sorted(imagined.items())):
-                strip = imagined_strip(frames)
-                time = log_time(t)
-                writer.add_message(imagined_channel, time, image_message(t, strip).SerializeToString(), time, i)
+        _write_plans(writer, search, imagined, frame_schema)
         writer.finish()
     return Path(path)
+
+
+def _write_plans(
+    writer: McapWriter, search: list[dict] | None, imagined: dict[int, np.ndarray] | None, frame_schema: int
+) -> None:
+    """The planner's search rows and imagined frames, one message a decision."""
+    if search:
+        search_json = json.dumps(SEARCH_JSON_SCHEMA).encode()
+        search_schema = writer.register_schema("dynplan.Search", "jsonschema", search_json)
+        search_channel = writer.register_channel(TOPIC_SEARCH, "json", search_schema)
+        for i, row in enumerate(search):
+            time = log_time(int(row["t"]))
+            writer.add_message(search_channel, time, json.dumps(row).encode(), time, i)
+    if imagined:
+        imagined_channel = writer.register_channel(TOPIC_IMAGINED, "protobuf", frame_schema)
+        for i, (t, frames) in enumerate(sorted(imagined.items())):
+            time = log_time(t)
+            writer.add_message(
+                imagined_channel, time, image_message(t, imagined_strip(frames)).SerializeToString(), time, i
+            )
 
 
 def _write_agent(writer: McapWriter, agent: AgentTrack, pose_schema: int) -> None:
@@ -182,29 +202,53 @@ def _block(lower_left: np.ndarray, height: int, colour: Color, t: int) -> Points
     """The outline of a 2 × 2 goal block whose lower-left pixel is at world (y, x)."""
     y, x = float(lower_left[0]), float(lower_left[1])
     corners = [(x, height - 2 - y), (x + 2, height - 2 - y), (x + 2, height - y), (x, height - y)]
-    return PointsAnnotation(timestamp=_stamp(t), type=PointsAnnotation.LINE_LOOP, outline_color=colour, thickness=1,
-                            points=[Point2(x=a, y=b) for a, b in corners])  # fmt: skip
+    return PointsAnnotation(
+        timestamp=_stamp(t),
+        type=PointsAnnotation.LINE_LOOP,
+        outline_color=colour,
+        thickness=1,
+        points=[Point2(x=a, y=b) for a, b in corners],
+    )
 
 
-def annotations(t: int, agent: np.ndarray, goal: np.ndarray | None, height: int,
-                decision: dict | None) -> ImageAnnotations:  # fmt: skip
+def annotations(
+    t: int, agent: np.ndarray, goal: np.ndarray | None, height: int, decision: dict | None
+) -> ImageAnnotations:
     """What a viewer draws over /world/frame at frame `t`: the agent (a circle), the true goal block, and for a
     decision the predicted goal at t + 1 and the chosen action (an arrow and its heading in degrees)."""
     from dynplan.env.agent import ACTION_ANGLES_DEG
 
     centre = _point(agent[0], agent[1], height)
-    marks = ImageAnnotations(circles=[CircleAnnotation(timestamp=_stamp(t), position=centre, diameter=3.0,
-                                                       thickness=1.0, outline_color=AGENT_COLOUR)],
-                             points=[] if goal is None else [_block(goal, height, GOAL_COLOUR, t)])  # fmt: skip
+    marks = ImageAnnotations(
+        circles=[
+            CircleAnnotation(
+                timestamp=_stamp(t), position=centre, diameter=3.0, thickness=1.0, outline_color=AGENT_COLOUR
+            )
+        ],
+        points=[] if goal is None else [_block(goal, height, GOAL_COLOUR, t)],
+    )
     if decision is not None:
         if decision.get("goal") is not None:  # a block's centre is its lower-left pixel + 0.5
             aimed = np.array([decision["goal"]["y"], decision["goal"]["x"]]) - 0.5
             marks.points.append(_block(aimed, height, PREDICTED_GOAL_COLOUR, t))
         angle = float(ACTION_ANGLES_DEG[decision["action"]])
         tip = Point2(x=centre.x + 4 * np.cos(np.deg2rad(angle)), y=centre.y - 4 * np.sin(np.deg2rad(angle)))
-        marks.points.append(PointsAnnotation(timestamp=_stamp(t), type=PointsAnnotation.LINE_LIST, points=[centre, tip],
-                                             outline_color=ACTION_COLOUR, thickness=1))  # fmt: skip
-        marks.texts.append(TextAnnotation(timestamp=_stamp(t), position=Point2(x=1.0, y=1.0), font_size=4.0,
-                                          text=f"t={t} action {decision['action']} ({angle:g}°)",
-                                          text_color=ACTION_COLOUR))  # fmt: skip
+        marks.points.append(
+            PointsAnnotation(
+                timestamp=_stamp(t),
+                type=PointsAnnotation.LINE_LIST,
+                points=[centre, tip],
+                outline_color=ACTION_COLOUR,
+                thickness=1,
+            )
+        )
+        marks.texts.append(
+            TextAnnotation(
+                timestamp=_stamp(t),
+                position=Point2(x=1.0, y=1.0),
+                font_size=4.0,
+                text=f"t={t} action {decision['action']} ({angle:g}°)",
+                text_color=ACTION_COLOUR,
+            )
+        )
     return marks

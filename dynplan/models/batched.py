@@ -110,8 +110,9 @@ def _first_argmax(logits: torch.Tensor, descending: torch.Tensor, work: torch.Te
     return (len(descending) - torch.addcmul(descending, work, descending, out=work).amax(-1)).long()
 
 
-def _pick(logits: torch.Tensor, temperature: float, uniforms: torch.Tensor, work: torch.Tensor,
-          cdf: torch.Tensor) -> torch.Tensor:  # fmt: skip
+def _pick(
+    logits: torch.Tensor, temperature: float, uniforms: torch.Tensor, work: torch.Tensor, cdf: torch.Tensor
+) -> torch.Tensor:
     """Codes (B,) from logits (B, K) by inverse transform of the softmax at `temperature` > 0 (in float64) with
     one uniform number per row — `pixelcnn.pick`'s rule, with its numbers: the maximum is taken in float32 (division
     by `temperature` > 0 is monotone, so max(x / T) is max(x) / T) and x / 1.0 is x. `work` and `cdf` (B, K)
@@ -128,10 +129,15 @@ def _pick(logits: torch.Tensor, temperature: float, uniforms: torch.Tensor, work
 
 
 @torch.inference_mode()
-def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperature: float = 0.0,
-                     generator: torch.Generator | None = None, weights: BatchedWeights | None = None,
-                     uniforms: torch.Tensor | None = None,
-                     table: torch.Tensor | None = None) -> torch.Tensor | tuple[torch.Tensor, ...]:  # fmt: skip
+def generate_batched(
+    model: ConditionalPixelCNN,
+    context: torch.Tensor,
+    temperature: float = 0.0,
+    generator: torch.Generator | None = None,
+    weights: BatchedWeights | None = None,
+    uniforms: torch.Tensor | None = None,
+    table: torch.Tensor | None = None,
+) -> torch.Tensor | tuple[torch.Tensor, ...]:
     """The next code grids (B, h, w) given `context` (B, 4, h, w): greedy if `temperature` is 0, else sampled.
 
     `generate_fast`'s contract, computed over the batch at once on `weights.device` (the model's weights laid out
@@ -144,8 +150,12 @@ def generate_batched(model: ConditionalPixelCNN, context: torch.Tensor, temperat
     if uniforms is None:
         uniforms = draw_uniforms(B, H, W, temperature, generator)
     if B > BLOCK_ROWS:  # blocks whose working set stays in the caches
-        parts = [generate_batched(model, context[s : s + BLOCK_ROWS], temperature, None, weights,
-                                  uniforms[s : s + BLOCK_ROWS], table) for s in range(0, B, BLOCK_ROWS)]  # fmt: skip
+        parts = [
+            generate_batched(
+                model, context[s : s + BLOCK_ROWS], temperature, None, weights, uniforms[s : s + BLOCK_ROWS], table
+            )
+            for s in range(0, B, BLOCK_ROWS)
+        ]
         return torch.cat(parts) if table is None else tuple(torch.cat(p) for p in zip(*parts, strict=True))
     return _Generation(model, context, temperature, weights, uniforms.to(weights.device), table).run()
 
@@ -154,8 +164,15 @@ class _Generation:
     """One block of `generate_batched`: its buffers, made once, and the grid generated row by row (the vertical
     stacks of the whole row at once), position by position (the horizontal stacks, the head and the code)."""
 
-    def __init__(self, model: ConditionalPixelCNN, context: torch.Tensor, temperature: float,
-                 weights: BatchedWeights, uniforms: torch.Tensor, table: torch.Tensor | None):  # fmt: skip
+    def __init__(
+        self,
+        model: ConditionalPixelCNN,
+        context: torch.Tensor,
+        temperature: float,
+        weights: BatchedWeights,
+        uniforms: torch.Tensor,
+        table: torch.Tensor | None,
+    ):
         B, _, H, W = context.shape
         device, L, C = weights.device, len(weights.v_weight), weights.embed.shape[1]
         self.shape, self.w, self.temperature, self.uniforms = (B, H, W, L, C), weights, temperature, uniforms
@@ -181,8 +198,10 @@ class _Generation:
         # Views, made once, of what each position reads and writes: layer l's window of columns j − taps + 1 … j
         # (B, taps · C, contiguous within a row) and its output column j (B, C).
         h, left = self.h, self.left
-        self.windows = [[h[layer, :, left + j - w.shape[0] // C + 1 : left + j + 1].reshape(B, -1) for j in range(W)]
-                        for layer, w in enumerate(weights.h_weight)]  # fmt: skip
+        self.windows = [
+            [h[layer, :, left + j - w.shape[0] // C + 1 : left + j + 1].reshape(B, -1) for j in range(W)]
+            for layer, w in enumerate(weights.h_weight)
+        ]
         self.columns = [[h[layer, :, left + j] for j in range(W)] for layer in range(L + 1)]
         self.layers = list(zip(weights.h_weight, weights.out_weight, weights.out_bias, weights.residual, strict=True))
         self.row_terms = [torch.empty(0)] * L
@@ -235,8 +254,9 @@ class _Generation:
                 self.v_in[layer + 1, :, top + i, top : top + W] = torch.tanh(gate[..., :C]) * torch.sigmoid(
                     gate[..., C:]
                 )
-            self.row_terms[layer] = torch.addmm(conditions[:, :, layer, 1].reshape(B * W, -1), v_pre,
-                                                weights.v2h_weight[layer]).reshape(B, W, -1)  # fmt: skip
+            self.row_terms[layer] = torch.addmm(
+                conditions[:, :, layer, 1].reshape(B * W, -1), v_pre, weights.v2h_weight[layer]
+            ).reshape(B, W, -1)
 
     def _position(self, i: int, j: int) -> None:
         """Position (i, j): every layer's horizontal stack, the head's logits and (with a table) the expected row."""

@@ -28,10 +28,16 @@ class Caution(Config):
     """Beyond the paper: how a learned model's frames are made more cautious before the planner sees them (both
     off: the paper's argmax alone). A result records the settings that are on (`recorded`)."""
 
-    occupancy: float = Field(0.0, ge=0.0, lt=1.0, description="obstacle probability from which the prior's "
-                             "unsure obstacles join the frames (0: off; needs patch-local codes)")  # fmt: skip
-    margin: int = Field(0, ge=0, le=4, description="pixels each predicted obstacle is widened by along its lane, "
-                        "both ways (0: off)")  # fmt: skip
+    occupancy: float = Field(
+        0.0,
+        ge=0.0,
+        lt=1.0,
+        description="obstacle probability from which the prior's "
+        "unsure obstacles join the frames (0: off; needs patch-local codes)",
+    )
+    margin: int = Field(
+        0, ge=0, le=4, description="pixels each predicted obstacle is widened by along its lane, both ways (0: off)"
+    )
 
     def recorded(self) -> dict:
         """The settings that are on (what a result played with them records; an absent key means off)."""
@@ -41,8 +47,10 @@ class Caution(Config):
         """The one home of "occupancy needs patch-local codes" (each code decodes to its own patch, so a code's
         probability is its patch's): a ConfigError naming the tokenizer otherwise."""
         if self.occupancy and not patch_local:
-            raise ConfigError(f"occupancy={self.occupancy} needs a tokenizer with patch-local codes (local=True); "
-                              f"{tokenizer!r} has none (use occupancy=0)")  # fmt: skip
+            raise ConfigError(
+                f"occupancy={self.occupancy} needs a tokenizer with patch-local codes (local=True); "
+                f"{tokenizer!r} has none (use occupancy=0)"
+            )
 
 
 def merge_samples(mid: np.ndarray, samples: np.ndarray) -> np.ndarray:

@@ -67,11 +67,11 @@ def _kernel_path(spec: ChainSpec, rows: int) -> bool:
 
 
 def _greedy_next(prior: ConditionalPixelCNN, context: torch.Tensor, spec: ChainSpec) -> torch.Tensor:
-    """The greedy next grid of each row of `context` (B, context, h, w) on the compiled kernel's path, each
-    context's generated once and kept: the greedy chain is a function of its context, so a decision whose newest
-    observed grid is the one the last decision predicted first continues that decision's chain, and only its last
-    grid is new. A kept grid is the one generated again up to float summation order (the conditioning is one
-    convolution over the rows generated together). Priors of strips only (`_keeps`)."""
+    """The greedy next grid of each row of `context` (B, context, h, w), each context's generated once (on the
+    path the count of new ones calls for) and kept: the greedy chain is a function of its context, so a decision
+    whose newest observed grid is the one the last decision predicted first continues that decision's chain, and
+    only its last grid is new. A kept grid is the one generated again up to float summation order (the
+    conditioning is one convolution over the rows generated together). Priors of strips only (`keeps_greedy`)."""
     memo = _MEMOS.setdefault(prior, OrderedDict())
     keys = [(row.shape, row.numpy().tobytes()) for row in context]
     missing = list(dict.fromkeys(key for key in keys if key not in memo))
@@ -87,9 +87,10 @@ def _greedy_next(prior: ConditionalPixelCNN, context: torch.Tensor, spec: ChainS
     return out
 
 
-def _keeps(prior: ConditionalPixelCNN) -> bool:
+def keeps_greedy(prior: ConditionalPixelCNN) -> bool:
     """Whether `prior`'s greedy grids are kept (`_greedy_next`): a strip prior's are, each strip's by its own
-    context (a decision mostly predicted each lane right); the road's committed evaluations generate every grid."""
+    context (a decision mostly predicted each lane right), and its world model decodes their mid-points code by
+    code (`VQVAE.decode_by_code`); the road's committed evaluations generate and decode every grid."""
     return prior.config.strip_rows is not None
 
 
@@ -98,8 +99,9 @@ def forget_greedy() -> None:
     _MEMOS.clear()
 
 
-def _next_grids(prior: ConditionalPixelCNN, context: torch.Tensor, uniforms: torch.Tensor | None,
-                spec: ChainSpec) -> tuple[torch.Tensor, np.ndarray | None]:  # fmt: skip
+def _next_grids(
+    prior: ConditionalPixelCNN, context: torch.Tensor, uniforms: torch.Tensor | None, spec: ChainSpec
+) -> tuple[torch.Tensor, np.ndarray | None]:
     """One grid per row of `context` (B, context, h, w), on the path its batch size calls for, and (with a table)
     its (B, h, w, P) expected obstacle pixels."""
     temperature = SAMPLED if uniforms is not None else 0.0
@@ -117,8 +119,9 @@ def _next_grids(prior: ConditionalPixelCNN, context: torch.Tensor, uniforms: tor
 
 
 @torch.inference_mode()
-def chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[int],
-          spec: ChainSpec) -> tuple[torch.Tensor, np.ndarray | None]:  # fmt: skip
+def chain(
+    prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[int], spec: ChainSpec
+) -> tuple[torch.Tensor, np.ndarray | None]:
     """The prior chained ahead from `context` (B, context, h, w), row b for `lengths[b]` grids: codes
     (B, max length, h, w), zero past a row's length, and with `spec.table` each grid's per-pixel obstacle
     probability (B, max length, H, W). Sampled when `spec.streams` is given, else greedy. A prior of strips
@@ -135,8 +138,9 @@ def chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[i
     return from_strips(grids, len(context)), probability
 
 
-def _chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[int],
-           spec: ChainSpec) -> tuple[torch.Tensor, np.ndarray | None]:  # fmt: skip
+def _chain(
+    prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[int], spec: ChainSpec
+) -> tuple[torch.Tensor, np.ndarray | None]:
     """`chain` of whole grids."""
     B, _, h, w = context.shape
     lengths = np.asarray(lengths)
@@ -152,9 +156,10 @@ def _chain(prior: ConditionalPixelCNN, context: torch.Tensor, lengths: Sequence[
         uniforms = None
         if spec.streams:
             pairs = zip(spec.streams, stream_lengths, strict=True)
-            uniforms = torch.cat([draw_uniforms(count, h, w, SAMPLED, generator)
-                                  for (generator, count), n in pairs if n > step])  # fmt: skip
-        if uniforms is None and spec.table is None and _keeps(prior) and _kernel_path(spec, len(live)):
+            uniforms = torch.cat(
+                [draw_uniforms(count, h, w, SAMPLED, generator) for (generator, count), n in pairs if n > step]
+            )
+        if uniforms is None and spec.table is None and keeps_greedy(prior):
             grid, expected = _greedy_next(prior, context[rows], spec), None
         else:
             grid, expected = _next_grids(prior, context[rows], uniforms, spec)

@@ -75,8 +75,9 @@ def load(path: str | os.PathLike, kind: str, config: dict | None = None) -> dict
         found = state.get("kind") if isinstance(state, dict) else type(state).__name__
         raise CheckpointError(f"{path}: holds a {found!r} checkpoint, expected {kind!r}")
     if config is not None and state.get("config") != config:
-        differing = sorted(k for k in set(config) | set(state.get("config", {}))
-                           if config.get(k) != state.get("config", {}).get(k))  # fmt: skip
+        differing = sorted(
+            k for k in set(config) | set(state.get("config", {})) if config.get(k) != state.get("config", {}).get(k)
+        )
         raise CheckpointError(
             f"{path}: was trained with a different configuration (differs in {', '.join(differing)}): "
             f"checkpoint { ({k: state['config'].get(k) for k in differing}) } vs requested "
@@ -134,14 +135,18 @@ def check_tensors(path: str | os.PathLike, state: dict, kind: str) -> None:
         if not isinstance(value, torch.Tensor):
             raise CheckpointError(f"{path}: {key!r} is a {type(value).__name__}, not a tensor")
         if tuple(value.shape) != needs[key]:
-            raise CheckpointError(f"{path}: tensor {key!r} has shape {_shown(value.shape)} but configuration "
-                                  f"{name!r} needs {_shown(needs[key])}")  # fmt: skip
+            raise CheckpointError(
+                f"{path}: tensor {key!r} has shape {_shown(value.shape)} but configuration "
+                f"{name!r} needs {_shown(needs[key])}"
+            )
         if value.is_floating_point() and not bool(torch.isfinite(value).all()):
             raise CheckpointError(f"{path}: tensor {key!r} holds NaN/inf values")
     missing = [key for key in needs if key not in weights]
     if missing:
-        raise CheckpointError(f"{path}: lacks tensor {missing[0]!r} of shape {_shown(needs[missing[0]])}, which "
-                              f"configuration {name!r} needs")  # fmt: skip
+        raise CheckpointError(
+            f"{path}: lacks tensor {missing[0]!r} of shape {_shown(needs[missing[0]])}, which "
+            f"configuration {name!r} needs"
+        )
 
 
 def model_card(path: str | os.PathLike) -> tuple[Path, dict] | None:
@@ -170,19 +175,24 @@ def check_card(path: str | os.PathLike, state: dict, kind: str) -> None:
         return
     card, contents = found
     if contents.get("stage", kind) != kind:
-        raise CheckpointError(f"{path}: holds a {kind!r} checkpoint, but its model card {card} describes a "
-                              f"{contents['stage']!r} one")  # fmt: skip
+        raise CheckpointError(
+            f"{path}: holds a {kind!r} checkpoint, but its model card {card} describes a {contents['stage']!r} one"
+        )
     described = contents.get("config")
     if isinstance(described, dict) and _differing(described, state["config"]):
         ours, theirs = state["config"].get("name", "custom"), described.get("name", "custom")
         if ours != theirs:
-            raise CheckpointError(f"{path}: its configuration is {ours!r}'s, not {theirs!r}'s (it does not match "
-                                  f"the model card {card})")  # fmt: skip
-        raise CheckpointError(f"{path}: its configuration differs from its model card {card} in "
-                              f"{', '.join(_differing(described, state['config']))}")  # fmt: skip
+            raise CheckpointError(
+                f"{path}: its configuration is {ours!r}'s, not {theirs!r}'s (it does not match the model card {card})"
+            )
+        raise CheckpointError(
+            f"{path}: its configuration differs from its model card {card} in "
+            f"{', '.join(_differing(described, state['config']))}"
+        )
     if contents["sha256"] != weights_sha256(path):
-        raise CheckpointError(f"{path}: its SHA-256 is not the one its model card {card} records (the file was "
-                              "changed or replaced)")  # fmt: skip
+        raise CheckpointError(
+            f"{path}: its SHA-256 is not the one its model card {card} records (the file was changed or replaced)"
+        )
 
 
 def check_configuration(path: str | os.PathLike, kind: str, found: str, expected: str) -> None:
@@ -196,12 +206,15 @@ def check_configuration(path: str | os.PathLike, kind: str, found: str, expected
     twin = pretrained_path(kind, found)
     same = twin.is_file() and twin.resolve() != Path(path).resolve() and weights_sha256(twin) == weights_sha256(path)
     because = f"it does not match the model card {card.name}" if card.is_file() else f"it records {found!r}"
-    raise CheckpointError(f"{path}: its configuration is {found!r}'s, not {expected!r}'s ({because}"
-                          f"{f'; it is a copy of {twin.name}' if same else ''})")  # fmt: skip
+    raise CheckpointError(
+        f"{path}: its configuration is {found!r}'s, not {expected!r}'s ({because}"
+        f"{f'; it is a copy of {twin.name}' if same else ''})"
+    )
 
 
-def verify(path: str | os.PathLike, kind: str, config: dict | None = None,
-           configuration: str | None = None) -> dict[str, Any]:  # fmt: skip
+def verify(
+    path: str | os.PathLike, kind: str, config: dict | None = None, configuration: str | None = None
+) -> dict[str, Any]:
     """Load a checkpoint of `kind` and check it up front, each failure one CheckpointError naming the file: it
     is readable and of `kind` (and of `config`, if given); its tensors are its recorded configuration's, of its
     shapes, and finite; it is what its model card says; and, with `configuration`, it is that registered
@@ -225,14 +238,17 @@ def warm_weights(path: str | os.PathLike, state: dict, kind: str, target: Mappin
     source = {k: v for k, v in source.items() if k != "code_sharpness" or k in target}
     if set(source) != set(target):
         differing = ", ".join(sorted(set(source) ^ set(target))[:4])
-        raise CheckpointError(f"{path}: cannot start this run from it: the architecture differs (parameters "
-                              f"{differing} …)")  # fmt: skip
+        raise CheckpointError(
+            f"{path}: cannot start this run from it: the architecture differs (parameters {differing} …)"
+        )
     for name, value in source.items():
         into = tuple(target[name])
         grown = [d for d in range(len(into)) if into[d] != value.shape[d]] if len(into) == value.dim() else None
         if grown is None or len(grown) > 1 or (grown and into[grown[0]] < value.shape[grown[0]]):
-            raise CheckpointError(f"{path}: cannot start this run from it: the architecture differs ({name}: "
-                                  f"{tuple(value.shape)} vs {into})")  # fmt: skip
+            raise CheckpointError(
+                f"{path}: cannot start this run from it: the architecture differs ({name}: "
+                f"{tuple(value.shape)} vs {into})"
+            )
     return source
 
 

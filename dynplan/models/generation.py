@@ -60,10 +60,15 @@ class KernelWeights(NamedTuple):
 
 
 @torch.inference_mode()
-def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature: float = 0.0,
-                  generator: torch.Generator | None = None, weights: KernelWeights | None = None,
-                  uniforms: torch.Tensor | None = None,
-                  table: np.ndarray | None = None) -> torch.Tensor | tuple[torch.Tensor, np.ndarray]:  # fmt: skip
+def generate_fast(
+    model: ConditionalPixelCNN,
+    context: torch.Tensor,
+    temperature: float = 0.0,
+    generator: torch.Generator | None = None,
+    weights: KernelWeights | None = None,
+    uniforms: torch.Tensor | None = None,
+    table: np.ndarray | None = None,
+) -> torch.Tensor | tuple[torch.Tensor, np.ndarray]:
     """The next code grid given `context` (B, 4, h, w): greedy if `temperature` is 0, else sampled.
 
     Same contract as `generate_naive` (the same codes, drawing the same random numbers), at a fraction of the
@@ -88,8 +93,16 @@ def generate_fast(model: ConditionalPixelCNN, context: torch.Tensor, temperature
     codes = np.zeros((B, H, W), np.int64)
 
     def rows(start: int, stop: int) -> None:
-        _generate_grid(cond_v[start:stop], cond_h[start:stop], float(temperature), numbers[start:stop], lookup,
-                       expected[start:stop], codes[start:stop], weights)  # fmt: skip
+        _generate_grid(
+            cond_v[start:stop],
+            cond_h[start:stop],
+            float(temperature),
+            numbers[start:stop],
+            lookup,
+            expected[start:stop],
+            codes[start:stop],
+            weights,
+        )
 
     # The kernel releases the GIL: torch's thread count of row blocks generate at once, each on its own grids.
     blocks = min(B, torch.get_num_threads())
@@ -359,11 +372,22 @@ def _work(L, H, W, C2, hidden, K):
     row's horizontal features, to_h (L, W, 2C), row (W, 2C), acc (2C,), out (C,), gated (C,), hidden, logits (K,),
     scratch (2C,), bits (int32), cdf (K,) and scale (K,) float64, probs (K,))."""
     C = C2 // 2
-    return (np.zeros((L, H, W, C), np.float32), np.zeros((L + 1, W, C), np.float32), np.zeros((L, W, C2), np.float32),
-            np.zeros((W, C2), np.float32), np.zeros(C2, np.float32), np.zeros(C, np.float32), np.zeros(C, np.float32),
-            np.zeros(hidden, np.float32), np.zeros(K, np.float32), np.zeros(C2, np.float32),
-            np.zeros(max(K, C2), np.int32), np.zeros(K, np.float64), np.zeros(K, np.float64),
-            np.zeros(K, np.float32))  # fmt: skip
+    return (
+        np.zeros((L, H, W, C), np.float32),
+        np.zeros((L + 1, W, C), np.float32),
+        np.zeros((L, W, C2), np.float32),
+        np.zeros((W, C2), np.float32),
+        np.zeros(C2, np.float32),
+        np.zeros(C, np.float32),
+        np.zeros(C, np.float32),
+        np.zeros(hidden, np.float32),
+        np.zeros(K, np.float32),
+        np.zeros(C2, np.float32),
+        np.zeros(max(K, C2), np.int32),
+        np.zeros(K, np.float64),
+        np.zeros(K, np.float64),
+        np.zeros(K, np.float32),
+    )
 
 
 @numba.njit(cache=True, inline="always")

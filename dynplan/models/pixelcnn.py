@@ -147,8 +147,9 @@ class ConditionalPixelCNN(nn.Module):
             )
             for i in range(c.layers)
         )
-        self.head = nn.Sequential(nn.ReLU(), nn.Conv2d(c.channels, c.channels, 1), nn.ReLU(),
-                                  nn.Conv2d(c.channels, c.codebook_size, 1))  # fmt: skip
+        self.head = nn.Sequential(
+            nn.ReLU(), nn.Conv2d(c.channels, c.channels, 1), nn.ReLU(), nn.Conv2d(c.channels, c.codebook_size, 1)
+        )
 
     @torch.no_grad()
     def embed_codebook(self, codebook: torch.Tensor, generator: torch.Generator | None = None) -> None:

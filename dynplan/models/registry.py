@@ -46,8 +46,10 @@ class WorldModelSpec:
 
     def __post_init__(self) -> None:
         if self.prior.codebook_size != self.tokenizer.codebook_size:
-            raise ValueError(f"world model {self.name!r}: the prior's codebook_size {self.prior.codebook_size} is not "
-                             f"the tokenizer's {self.tokenizer.codebook_size}")  # fmt: skip
+            raise ValueError(
+                f"world model {self.name!r}: the prior's codebook_size {self.prior.codebook_size} is not "
+                f"the tokenizer's {self.tokenizer.codebook_size}"
+            )
         self.caution.check_fits(self.tokenizer.local, self.name)
         unknown = (set(self.budgets) | set(self.weights)) - set(STAGES)
         if unknown:
@@ -114,20 +116,33 @@ def caution_for(model: str, overrides: Mapping[str, float] | None = None) -> Cau
     return Caution(**{**own.model_dump(), **(overrides or {})})
 
 
-register_world_model(WorldModelSpec(
-    "paper", PRESETS["paper"], PIXELCNN_PRESETS["paper"], Caution(),
-    budgets={"vqvae": {"epochs": 200, "steps_per_epoch": 200, "threads": 1},
-             "pixelcnn": {"epochs": 100, "steps_per_epoch": 500, "threads": 1}},
-    weights={"vqvae": "vqvae-paper.pt", "pixelcnn": "pixelcnn-paper.pt"},
-    description="the paper's: 6 × 6 codes from 512, DMoL decoder, 64 × 8 prior; plans on the argmax alone",
-))  # fmt: skip
-register_world_model(WorldModelSpec(
-    "default", PRESETS["default"], PIXELCNN_PRESETS["default"],
-    # chosen on validation episodes, never the evaluation's (docs/design.md, occupancy and the lane margin)
-    Caution(occupancy=0.1, margin=1),
-    budgets={"vqvae": {"epochs": 8, "steps_per_epoch": 1000},
-             "pixelcnn": {"epochs": 100, "steps_per_epoch": 500, "threads": 1}},
-    weights={"vqvae": "vqvae-default.pt", "pixelcnn": "pixelcnn-default.pt"},
-    description="ours: 12 × 12 patch-local codes from 4096, calibrated categorical decoder, 32 × 8 prior, "
-                "occupancy 0.1 and a one-pixel lane margin",
-))  # fmt: skip
+register_world_model(
+    WorldModelSpec(
+        "paper",
+        PRESETS["paper"],
+        PIXELCNN_PRESETS["paper"],
+        Caution(),
+        budgets={
+            "vqvae": {"epochs": 200, "steps_per_epoch": 200, "threads": 1},
+            "pixelcnn": {"epochs": 100, "steps_per_epoch": 500, "threads": 1},
+        },
+        weights={"vqvae": "vqvae-paper.pt", "pixelcnn": "pixelcnn-paper.pt"},
+        description="the paper's: 6 × 6 codes from 512, DMoL decoder, 64 × 8 prior; plans on the argmax alone",
+    )
+)
+register_world_model(
+    WorldModelSpec(
+        "default",
+        PRESETS["default"],
+        PIXELCNN_PRESETS["default"],
+        # chosen on validation episodes, never the evaluation's (docs/design.md, occupancy and the lane margin)
+        Caution(occupancy=0.1, margin=1),
+        budgets={
+            "vqvae": {"epochs": 8, "steps_per_epoch": 1000},
+            "pixelcnn": {"epochs": 100, "steps_per_epoch": 500, "threads": 1},
+        },
+        weights={"vqvae": "vqvae-default.pt", "pixelcnn": "pixelcnn-default.pt"},
+        description="ours: 12 × 12 patch-local codes from 4096, calibrated categorical decoder, 32 × 8 prior, "
+        "occupancy 0.1 and a one-pixel lane margin",
+    )
+)

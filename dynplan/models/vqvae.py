@@ -97,12 +97,15 @@ class VQVAEConfig(Config):
         except ConfigError as error:
             raise ValueError(str(error)) from None
         if self.world != DEFAULT_WORLD and self.likelihood == "dmol":
-            raise ValueError(f"likelihood 'dmol' snaps to the road's pixel values; the {self.world} world needs "
-                             "'categorical'")  # fmt: skip
+            raise ValueError(
+                f"likelihood 'dmol' snaps to the road's pixel values; the {self.world} world needs 'categorical'"
+            )
         scale = 2 ** sum(s == 2 for s in self.strides)
         if (self.height + self.pad_top) % scale or self.width % scale:
-            raise ValueError(f"frame {self.height}×{self.width} (padded by {self.pad_top} rows) is not divisible by "
-                             f"the encoder's stride {scale}")  # fmt: skip
+            raise ValueError(
+                f"frame {self.height}×{self.width} (padded by {self.pad_top} rows) is not divisible by "
+                f"the encoder's stride {scale}"
+            )
         if self.codebook_fit == "contents" and not self.local:
             raise ValueError("codebook_fit='contents' needs local=True")
         if self.calibrate_decoder and (self.codebook_fit != "contents" or self.likelihood != "categorical"):
@@ -177,8 +180,12 @@ def _deconv(c_in: int, c_out: int, stride: int, local: bool = False) -> nn.Modul
 class Residual(nn.Module):
     def __init__(self, channels: int, kernel: int = 3):
         super().__init__()
-        self.block = nn.Sequential(nn.ReLU(), nn.Conv2d(channels, channels, kernel, padding=kernel // 2), nn.ReLU(),
-                                   nn.Conv2d(channels, channels, 1))  # fmt: skip
+        self.block = nn.Sequential(
+            nn.ReLU(),
+            nn.Conv2d(channels, channels, kernel, padding=kernel // 2),
+            nn.ReLU(),
+            nn.Conv2d(channels, channels, 1),
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x + self.block(x)
@@ -301,8 +308,9 @@ class VQVAE(nn.Module):
     def encode(self, frames: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """uint8 frames (N, H, W), or one frame (H, W) → integer codes (N, h, w), or (h, w). Returns the kind it
         is given: numpy in, numpy (int64) out; a tensor in, a tensor out."""
-        frames, numpy_in, single = _array_in(frames, "frames", "encode", "uint8 frames (N, H, W) or one (H, W)",
-                                             (2, 3), integer=False)  # fmt: skip
+        frames, numpy_in, single = _array_in(
+            frames, "frames", "encode", "uint8 frames (N, H, W) or one (H, W)", (2, 3), integer=False
+        )
         codes = self._encode(frames)
         return _array_out(codes, numpy_in, single)
 
@@ -331,15 +339,27 @@ class VQVAE(nn.Module):
         of C where that is cheaper (a last transposed convolution computes only those output channels, the same
         numbers; what a DMoL mid-point needs). The padded rows are dropped: (N, C, height, W)."""
         if len(codes) > DECODE_ROWS:
-            return torch.cat([self.decode_params(codes[s : s + DECODE_ROWS], channels)
-                              for s in range(0, len(codes), DECODE_ROWS)])  # fmt: skip
+            return torch.cat(
+                [self.decode_params(codes[s : s + DECODE_ROWS], channels) for s in range(0, len(codes), DECODE_ROWS)]
+            )
         latent = self.quantizer.lookup(codes.long())
         last = self.decoder[-1]
-        if (channels is not None and isinstance(last, nn.ConvTranspose2d) and channels < last.out_channels
-                and not self.config.calibrate_decoder):  # fmt: skip
-            params = F.conv_transpose2d(self.decoder[:-1](latent), last.weight[:, :channels].contiguous(),
-                                        last.bias[:channels], last.stride, last.padding, last.output_padding,
-                                        last.groups, last.dilation)  # fmt: skip
+        if (
+            channels is not None
+            and isinstance(last, nn.ConvTranspose2d)
+            and channels < last.out_channels
+            and not self.config.calibrate_decoder
+        ):
+            params = F.conv_transpose2d(
+                self.decoder[:-1](latent),
+                last.weight[:, :channels].contiguous(),
+                last.bias[:channels],
+                last.stride,
+                last.padding,
+                last.output_padding,
+                last.groups,
+                last.dilation,
+            )
         else:
             params = self.decoder(latent)
         if self.config.calibrate_decoder:
@@ -348,9 +368,24 @@ class VQVAE(nn.Module):
             params = params * scale[:, None]
         return params[:, :, : self.config.height] if self.config.pad_top else params
 
+    @torch.inference_mode()
+    def decode_by_code(self, codes: torch.Tensor) -> torch.Tensor:
+        """Integer codes (N, h, w) → uint8 mid-point frames (N, H, W) of a patch-local model, each of the K codes'
+        patches decoded once and laid out by `codes`: `decode`'s mid-points up to float summation order (a code
+        decodes to its own patch alone), for the cost of K patches instead of N · h · w."""
+        if not self.config.local:
+            raise ValueError("VQVAE.decode_by_code: a code decodes to its own patch only in a patch-local model")
+        K, (ph, pw) = self.config.codebook_size, self.patch
+        each = torch.arange(K, device=codes.device)[:, None, None]
+        table = self.pixel.mid(self.decode_params(each, self.pixel.mid_channels))  # (K, ph, pw)
+        N, h, w = codes.shape
+        frames = table[codes.long()].permute(0, 1, 3, 2, 4).reshape(N, h * ph, w * pw)
+        return frames[:, : self.config.height] if self.config.pad_top else frames
+
     @torch.no_grad()
-    def calibrate(self, contents: torch.Tensor, counts: torch.Tensor,
-                  scales: torch.Tensor = SHARPNESS_GRID) -> torch.Tensor:  # fmt: skip
+    def calibrate(
+        self, contents: torch.Tensor, counts: torch.Tensor, scales: torch.Tensor = SHARPNESS_GRID
+    ) -> torch.Tensor:
         """Temperature scaling, one temperature per code: set each code's logit scale to the one of `scales` that
         maximises the likelihood of the distinct patch `contents` (U, ph, pw), weighted by their `counts`, that
         encode to it; codes no content encodes to keep scale 1. Returns the scales (K,)."""
@@ -370,11 +405,14 @@ class VQVAE(nn.Module):
     def decode(self, codes: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
         """Integer codes (N, h, w), or one grid (h, w) → uint8 mid-point frames (N, H, W), or (H, W), on the
         world's pixel values; numpy in, numpy out."""
-        codes, numpy_in, single = _array_in(codes, "codes", "decode", "integer codes (N, h, w) or one grid (h, w)",
-                                            (2, 3), integer=True)  # fmt: skip
+        codes, numpy_in, single = _array_in(
+            codes, "codes", "decode", "integer codes (N, h, w) or one grid (h, w)", (2, 3), integer=True
+        )
         if codes.numel() and (int(codes.min()) < 0 or int(codes.max()) >= self.config.codebook_size):
-            raise ValueError(f"VQVAE.decode: codes must lie in [0, {self.config.codebook_size}); got values in "
-                             f"[{int(codes.min())}, {int(codes.max())}]")  # fmt: skip
+            raise ValueError(
+                f"VQVAE.decode: codes must lie in [0, {self.config.codebook_size}); got values in "
+                f"[{int(codes.min())}, {int(codes.max())}]"
+            )
         return _array_out(self.pixel.mid(self.decode_params(codes, self.pixel.mid_channels)), numpy_in, single)
 
     @torch.inference_mode()
@@ -383,22 +421,25 @@ class VQVAE(nn.Module):
         return self.decode_with_samples(codes, n, generator)[1]
 
     @torch.inference_mode()
-    def decode_with_samples(self, codes: torch.Tensor, n: int,
-                            generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    def decode_with_samples(
+        self, codes: torch.Tensor, n: int, generator: torch.Generator | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         """codes (N, …) → the mid-point frames (N, H, W) and n samples per frame (n, N, H, W), uint8, from one
         pass of the decoder (what the planner's *N samples* variants need)."""
         params = self.decode_params(codes)
         return self.pixel.mid(params), self.pixel.sample_with(params, self.pixel.noise(params.shape, n, generator))
 
 
-def _array_in(x, name: str, method: str, expect: str, dims: tuple[int, int],
-              integer: bool) -> tuple[torch.Tensor, bool, bool]:  # fmt: skip
+def _array_in(
+    x, name: str, method: str, expect: str, dims: tuple[int, int], integer: bool
+) -> tuple[torch.Tensor, bool, bool]:
     """`x` as a batched tensor, whether it came as numpy, and whether it was a single item (one dimension less);
     a wrong type, dtype or rank is one line naming the argument."""
     numpy_in = isinstance(x, np.ndarray)
     if not numpy_in and not isinstance(x, torch.Tensor):
-        raise TypeError(f"VQVAE.{method}: {name} must be a numpy array or a torch tensor of {expect}; "
-                        f"got {type(x).__name__}")  # fmt: skip
+        raise TypeError(
+            f"VQVAE.{method}: {name} must be a numpy array or a torch tensor of {expect}; got {type(x).__name__}"
+        )
     if numpy_in:
         good = np.issubdtype(x.dtype, np.integer) if integer else x.dtype == np.uint8
         dtype = str(x.dtype)

@@ -28,7 +28,7 @@ import torch
 from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models import checkpoint
 from dynplan.models.caution import Caution, merge_samples, unsure_obstacles, widen_obstacles
-from dynplan.models.chain import ChainSpec, chain
+from dynplan.models.chain import ChainSpec, chain, keeps_greedy
 from dynplan.models.checkpoint import CheckpointError, pretrained_path
 from dynplan.models.device import check_device, one_thread
 from dynplan.models.encoding import encode_contexts
@@ -83,19 +83,31 @@ class LearnedWorldModel(ForwardModel):
     the compiled kernel for small batches, else by the batched generation on `device` (always there when `device`
     is not the CPU)."""
 
-    def __init__(self, tokenizer: VQVAE, prior: ConditionalPixelCNN, samples: int = 0, futures: int = 0,
-                 seed: int = 0, caution: Caution | None = None, device: str = "cpu"):  # fmt: skip
+    def __init__(
+        self,
+        tokenizer: VQVAE,
+        prior: ConditionalPixelCNN,
+        samples: int = 0,
+        futures: int = 0,
+        seed: int = 0,
+        caution: Caution | None = None,
+        device: str = "cpu",
+    ):
         if tokenizer.config.codebook_size != prior.config.codebook_size:
-            raise ValueError(f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
-                             f"{tokenizer.config.codebook_size}")  # fmt: skip
+            raise ValueError(
+                f"the prior predicts {prior.config.codebook_size} codes; the tokenizer has "
+                f"{tokenizer.config.codebook_size}"
+            )
         for name, value in (("samples", samples), ("futures", futures)):
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or not 0 <= value <= MAX_DRAWS:
                 raise ValueError(f"{name} must be an integer in [0, {MAX_DRAWS}]; got {value!r}")
         self.caution = Caution() if caution is None else caution
         self.caution.check_fits(tokenizer.config.local, tokenizer.config.name)
         if self.caution.recorded() and tokenizer.config.world != DEFAULT_WORLD:
-            raise ValueError(f"caution {self.caution.recorded()} reads the road's obstacle values; a model of the "
-                             f"{tokenizer.config.world} world takes none")  # fmt: skip
+            raise ValueError(
+                f"caution {self.caution.recorded()} reads the road's obstacle values; a model of the "
+                f"{tokenizer.config.world} world takes none"
+            )
         self.tokenizer, self.prior = tokenizer.eval(), prior.eval()
         self.samples, self.futures, self.seed = samples, futures, seed
         shown = "".join(f", {key}={value}" for key, value in self.caution.recorded().items())
@@ -154,8 +166,10 @@ class LearnedWorldModel(ForwardModel):
         bad = ~self._world_pixel[read if read.dtype == np.uint8 else np.where((read < 0) | (read > 255), 256, read)]
         if bad.any():
             f, row, col = (int(i) for i in np.argwhere(bad)[0])
-            raise ValueError(f"{method}: {name} frame {len(observed) - len(read) + f} holds {read[f, row, col]} at "
-                             f"row {row}, column {col}, which is not a world pixel value {values}")  # fmt: skip
+            raise ValueError(
+                f"{method}: {name} frame {len(observed) - len(read) + f} holds {read[f, row, col]} at "
+                f"row {row}, column {col}, which is not a world pixel value {values}"
+            )
         return (read if read.dtype == np.uint8 else read.astype(np.uint8)), int(k)
 
     def cost(self, k: int) -> float:
@@ -178,8 +192,9 @@ class LearnedWorldModel(ForwardModel):
 
     @classmethod
     @torch.inference_mode()
-    def predict_batch(cls, models: Sequence[LearnedWorldModel], observed: Sequence[np.ndarray],
-                      ks: Sequence[int]) -> list[Prediction]:  # fmt: skip
+    def predict_batch(
+        cls, models: Sequence[LearnedWorldModel], observed: Sequence[np.ndarray], ks: Sequence[int]
+    ) -> list[Prediction]:
         """Each model's prediction of its own episode (`observed[e]`, `ks[e]` frames ahead), computed together by
         models on the same weights (equal `batch_key`) whatever their settings: one encoding; one greedy chain
         (with its occupancy) per distinct observation, as long as the longest horizon asking for it; one set of
@@ -189,21 +204,29 @@ class LearnedWorldModel(ForwardModel):
         _check_batch(models, observed, ks)
         if not models:
             return []
-        checked = [m.checked(o, k, "predict_batch", f"[{e}]")
-                   for e, (m, o, k) in enumerate(zip(models, observed, ks, strict=True))]  # fmt: skip
+        checked = [
+            m.checked(o, k, "predict_batch", f"[{e}]")
+            for e, (m, o, k) in enumerate(zip(models, observed, ks, strict=True))
+        ]
         return cls._predict_batch(models, [o for o, _ in checked], [k for _, k in checked])
 
     @staticmethod
-    def _predict_batch(models: Sequence[LearnedWorldModel], observed: Sequence[np.ndarray],
-                       ks: Sequence[int]) -> list[Prediction]:  # fmt: skip
+    def _predict_batch(
+        models: Sequence[LearnedWorldModel], observed: Sequence[np.ndarray], ks: Sequence[int]
+    ) -> list[Prediction]:
         """`predict_batch` of arguments already checked."""
         first = models[0]
         obs = _Observations.of(encode_contexts(first.tokenizer, observed, first.context), ks)
         occupancy = any(m.caution.occupancy for m in models)
         greedy, probability = chain(first.prior, obs.unique, obs.lengths, first.chain_spec(occupancy=occupancy))
-        with one_thread():
-            params = first.tokenizer.decode_params(torch.cat([greedy[u, :n] for u, n in enumerate(obs.lengths)]))
-        mid = first.tokenizer.pixel.mid(params).numpy()
+        codes = torch.cat([greedy[u, :n] for u, n in enumerate(obs.lengths)])
+        if keeps_greedy(first.prior) and first.tokenizer.config.local and not any(m.samples for m in models):
+            with one_thread():  # no decoder samples: no params
+                mid, params = first.tokenizer.decode_by_code(codes).numpy(), None
+        else:
+            with one_thread():
+                params = first.tokenizer.decode_params(codes)
+            mid = first.tokenizer.pixel.mid(params).numpy()
         others = _decoder_samples(models, ks, obs, params)
         for e, model in enumerate(models):
             if model.caution.occupancy:
@@ -231,8 +254,9 @@ def _check_batch(models: Sequence[LearnedWorldModel], observed: Sequence[np.ndar
         raise ValueError("predict_batch: the models differ in weights or device; group them by batch_key")
 
 
-def _groups(counts: Sequence[int], models: Sequence[LearnedWorldModel], ks: Sequence[int],
-            obs: _Observations) -> dict[int, list[tuple[tuple[int, int], int, list[int]]]]:  # fmt: skip
+def _groups(
+    counts: Sequence[int], models: Sequence[LearnedWorldModel], ks: Sequence[int], obs: _Observations
+) -> dict[int, list[tuple[tuple[int, int], int, list[int]]]]:
     """The draws to make, once per (distinct observation, model seed) among the episodes asking for a nonzero
     count of them (`counts[e]`: decoder samples or futures): grouped by the most any of them asks for, each entry
     ((observation, seed), frames: the longest horizon asking, the episodes it serves)."""
@@ -247,18 +271,23 @@ def _groups(counts: Sequence[int], models: Sequence[LearnedWorldModel], ks: Sequ
     return by_count
 
 
-def _decoder_samples(models: Sequence[LearnedWorldModel], ks: Sequence[int], obs: _Observations,
-                     params: torch.Tensor) -> list[list[np.ndarray]]:  # fmt: skip
+def _decoder_samples(
+    models: Sequence[LearnedWorldModel], ks: Sequence[int], obs: _Observations, params: torch.Tensor | None
+) -> list[list[np.ndarray]]:
     """Each episode's decoder samples (as a one-item list; empty without samples): (samples, k, H, W) uint8, drawn
     once per observation and seed — the most any model asks for — from the greedy chain's decoder `params`."""
     pixel, others = models[0].tokenizer.pixel, [[] for _ in models]
     for count, entries in _groups([m.samples for m in models], models, ks, obs).items():
         shape = torch.Size((1, *params.shape[1:]))
-        noise = [pixel.noise(shape, count, observation_stream(seed, obs.keys[u], "samples", f))
-                 for (u, seed), n, _ in entries for f in range(n)]  # fmt: skip
+        noise = [
+            pixel.noise(shape, count, observation_stream(seed, obs.keys[u], "samples", f))
+            for (u, seed), n, _ in entries
+            for f in range(n)
+        ]
         joined = tuple(torch.cat(parts, dim=1) for parts in zip(*noise, strict=True))  # batch axis: 1
-        rows = torch.from_numpy(np.concatenate([np.arange(obs.starts[u], obs.starts[u] + n)
-                                                for (u, _), n, _ in entries]))  # fmt: skip
+        rows = torch.from_numpy(
+            np.concatenate([np.arange(obs.starts[u], obs.starts[u] + n) for (u, _), n, _ in entries])
+        )
         samples = pixel.sample_with(params[rows], joined).numpy()  # (count, Σ frames, H, W)
         offsets = np.cumsum([0, *(n for _, n, _ in entries)])
         for j, (_, _, members) in enumerate(entries):
@@ -267,21 +296,28 @@ def _decoder_samples(models: Sequence[LearnedWorldModel], ks: Sequence[int], obs
     return others
 
 
-def _sampled_futures(models: Sequence[LearnedWorldModel], ks: Sequence[int],
-                     obs: _Observations) -> dict[int, np.ndarray]:  # fmt: skip
+def _sampled_futures(
+    models: Sequence[LearnedWorldModel], ks: Sequence[int], obs: _Observations
+) -> dict[int, np.ndarray]:
     """Each episode's sampled futures (futures, k, H, W) uint8 (only episodes whose model samples some): chained
     from the prior once per observation and seed — the most any model asks for, one stream per future, so fewer
     are a prefix — and decoded."""
     first, out = models[0], {}
     for count, entries in _groups([m.futures for m in models], models, ks, obs).items():
-        streams = [(observation_stream(seed, obs.keys[u], "futures", j), 1)
-                   for (u, seed), _, _ in entries for j in range(count)]  # fmt: skip
+        streams = [
+            (observation_stream(seed, obs.keys[u], "futures", j), 1)
+            for (u, seed), _, _ in entries
+            for j in range(count)
+        ]
         rows = torch.tensor([u for (u, _), _, _ in entries]).repeat_interleave(count)
         lengths = np.repeat([n for _, n, _ in entries], count)
         sampled, _ = chain(first.prior, obs.unique[rows], lengths, first.chain_spec(streams))
         with one_thread():
-            decoded = first.tokenizer.decode(torch.cat([sampled[j * count : (j + 1) * count, :n].flatten(0, 1)
-                                                        for j, (_, n, _) in enumerate(entries)])).numpy()  # fmt: skip
+            decoded = first.tokenizer.decode(
+                torch.cat(
+                    [sampled[j * count : (j + 1) * count, :n].flatten(0, 1) for j, (_, n, _) in enumerate(entries)]
+                )
+            ).numpy()
         offsets = np.cumsum([0, *(count * n for _, n, _ in entries)])
         for j, (_, n, members) in enumerate(entries):
             futures = decoded[offsets[j] : offsets[j + 1]].reshape(count, n, *decoded.shape[1:])
@@ -304,8 +340,11 @@ def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple
     `model`'s (not another registered configuration's) and one world model."""
     missing = [str(p) for p in paths if not Path(p).exists()]
     if missing:
-        how = (f"train them with `python -m flows.train vqvae|pixelcnn --model {model}` or the collect-train-eval "
-               "flow" if model in WORLD_MODELS else f"configuration {model!r} is not registered")  # fmt: skip
+        how = (
+            f"train them with `python -m flows.train vqvae|pixelcnn --model {model}` or the collect-train-eval flow"
+            if model in WORLD_MODELS
+            else f"configuration {model!r} is not registered"
+        )
         raise CheckpointError(f"no world model checkpoints at {', '.join(missing)}; {how}")
     tokenizer = checkpoint.cached(checkpoint.VQVAE_KIND, paths[0], model)
     prior = checkpoint.cached(checkpoint.PIXELCNN_KIND, paths[1], model)
@@ -317,9 +356,15 @@ def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple
     return tokenizer, prior
 
 
-def load_world_model(path: str | os.PathLike | None = None, model: str = "default", samples: int = 0, futures: int = 0,
-                     seed: int = 0, caution: Mapping[str, float] | None = None,
-                     device: str = "cpu") -> LearnedWorldModel:  # fmt: skip
+def load_world_model(
+    path: str | os.PathLike | None = None,
+    model: str = "default",
+    samples: int = 0,
+    futures: int = 0,
+    seed: int = 0,
+    caution: Mapping[str, float] | None = None,
+    device: str = "cpu",
+) -> LearnedWorldModel:
     """The learned forward model: from a folder holding `vqvae.pt` and `pixelcnn.pt`, or (None) the committed
     pretrained checkpoints of the configuration `model` (a registered one: "default", "paper", …), with the
     configuration's own caution (its registry entry) except where `caution` (field → value) overrides it. Weights

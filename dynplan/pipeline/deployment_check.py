@@ -54,8 +54,13 @@ def run_check(out: Path, preset: str = "smoke", timeout: float = 900) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     port = _free_port()
     api = f"http://127.0.0.1:{port}/api"
-    env = {**os.environ, "PREFECT_HOME": str(out / "prefect_home"), "PREFECT_API_URL": api,
-           "PREFECT_SERVER_ANALYTICS_ENABLED": "false", "PREFECT_UI_ENABLED": "false"}  # fmt: skip
+    env = {
+        **os.environ,
+        "PREFECT_HOME": str(out / "prefect_home"),
+        "PREFECT_API_URL": api,
+        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+        "PREFECT_UI_ENABLED": "false",
+    }
     prefect = str(Path(sys.executable).with_name("prefect"))
     with ExitStack() as stack:
 
@@ -69,8 +74,9 @@ def run_check(out: Path, preset: str = "smoke", timeout: float = 900) -> Path:
         server, server_log = start("server", prefect, "server", "start", "--host", "127.0.0.1", "--port", str(port))
         _wait("prefect server", lambda: _healthy(api), 180, server_log, server)
         runs = out / "runs"
-        serving, serve_log = start("serve", sys.executable, "-m", "flows.serve", "--out", str(runs),
-                                   "--presets", preset)  # fmt: skip
+        serving, serve_log = start(
+            "serve", sys.executable, "-m", "flows.serve", "--out", str(runs), "--presets", preset
+        )
         name = f"collect-train-eval/{preset}"
 
         def deployed() -> bool:
@@ -78,8 +84,12 @@ def run_check(out: Path, preset: str = "smoke", timeout: float = 900) -> Path:
             return inspect.returncode == 0
 
         _wait(f"deployment {name}", deployed, 180, serve_log, serving)
-        trigger = subprocess.run([prefect, "deployment", "run", name, "--watch", "--watch-timeout", str(int(timeout))],
-                                 env=env, capture_output=True, text=True)  # fmt: skip
+        trigger = subprocess.run(
+            [prefect, "deployment", "run", name, "--watch", "--watch-timeout", str(int(timeout))],
+            env=env,
+            capture_output=True,
+            text=True,
+        )
         (out / "trigger.log").write_text(trigger.stdout + trigger.stderr)
         if trigger.returncode != 0 or "Completed" not in trigger.stdout:
             raise DeploymentCheckError(f"flow run of {name} did not complete; see {out / 'trigger.log'}, {serve_log}")

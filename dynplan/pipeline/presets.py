@@ -88,8 +88,12 @@ class PipelinePreset(Config):
         """An evaluation given as fields, or none, is a plan of its own world or else the run's world."""
         if isinstance(data, dict) and isinstance(evaluation := data.get("evaluation", {}), dict):
             name = evaluation.get("world", data.get("world", DEFAULT_WORLD))
-            data = {**data, "evaluation": evaluation_plan(name if name in world_names() else DEFAULT_WORLD)(
-                **{"world": name if name in world_names() else DEFAULT_WORLD, **evaluation})}  # fmt: skip
+            data = {
+                **data,
+                "evaluation": evaluation_plan(name if name in world_names() else DEFAULT_WORLD)(
+                    **{"world": name if name in world_names() else DEFAULT_WORLD, **evaluation}
+                ),
+            }
         return data
 
     @model_validator(mode="after")
@@ -102,8 +106,10 @@ class PipelinePreset(Config):
             raise ValueError(f"the evaluation plays the {self.evaluation.world} world, not this run's {self.world}")
         last = world(self.world).seeds[1]
         if self.train_episodes > last + 1:
-            raise ValueError(f"train_episodes={self.train_episodes} is invalid for the {self.world} world; valid range "
-                             f"[5, {last + 1}] (its seeds 0 … {last})")  # fmt: skip
+            raise ValueError(
+                f"train_episodes={self.train_episodes} is invalid for the {self.world} world; valid range "
+                f"[5, {last + 1}] (its seeds 0 … {last})"
+            )
         for model in self.models:
             VQVAEConfig(**{**world_model_spec(model).tokenizer.model_dump(), **self.vqvae_plan(model).overrides})
             self.pixelcnn_config(model)
@@ -121,8 +127,9 @@ class PipelinePreset(Config):
     def pixelcnn_config(self, model: str) -> PixelCNNConfig:
         """The prior's config; K always follows the VQ-VAE's codebook."""
         k = self.vqvae_config(model).codebook_size
-        return PixelCNNConfig(**{**world_model_spec(model).prior.model_dump(), **self.pixelcnn_plan(model).overrides,
-                                 "codebook_size": k})  # fmt: skip
+        return PixelCNNConfig(
+            **{**world_model_spec(model).prior.model_dump(), **self.pixelcnn_plan(model).overrides, "codebook_size": k}
+        )
 
     @property
     def learned_techniques(self) -> tuple[str, ...]:

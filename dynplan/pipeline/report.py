@@ -51,12 +51,26 @@ def checkpoint_record(stage: str, model: str, path: str | os.PathLike) -> Checkp
     state = torch.load(path, map_location="cpu", weights_only=False)
     last = state["history"][-1] if state.get("history") else {}
     keep = [k for k in last if k.startswith("val_") or k in ("loss", "frames_seen", "patches_seen", "windows_seen")]
-    return CheckpointRecord(stage, model, str(path), state["config"], int(state["epoch"]),
-                            round(state["elapsed_s"] / 3600, 3), {k: last[k] for k in keep})  # fmt: skip
+    return CheckpointRecord(
+        stage,
+        model,
+        str(path),
+        state["config"],
+        int(state["epoch"]),
+        round(state["elapsed_s"] / 3600, 3),
+        {k: last[k] for k in keep},
+    )
 
 
-def draw_figures(out: Path, models: dict[str, Path], eval_logs: Path, seed: int, rollout_steps: int, episodes: int,
-                 technique: str = "mid") -> dict[str, str]:  # fmt: skip
+def draw_figures(
+    out: Path,
+    models: dict[str, Path],
+    eval_logs: Path,
+    seed: int,
+    rollout_steps: int,
+    episodes: int,
+    technique: str = "mid",
+) -> dict[str, str]:
     """Prediction error against horizon (every configuration), a Figure-1 image and a replay GIF (the first),
     into `out`; skipped when `out/figures.json` says they were drawn from the same checkpoints."""
     from dynplan.evaluation.agent import AgentSpec
@@ -127,8 +141,9 @@ def figures_section(figures: dict[str, str] | None) -> list[str]:
     ]
 
 
-def render_report(preset: dict, command: str, results: list[str], stages: list[StageRecord],
-                  checkpoints: list[CheckpointRecord]) -> str:  # fmt: skip
+def render_report(
+    preset: dict, command: str, results: list[str], stages: list[StageRecord], checkpoints: list[CheckpointRecord]
+) -> str:
     """The report's Markdown: `results` (the world's results and pictures, Markdown lines), then the stages,
     checkpoints and preset."""
     lines = [
@@ -163,9 +178,11 @@ def write_report(out: Path, markdown: str) -> tuple[Path, Path]:
     from markdown_it import MarkdownIt
 
     body = MarkdownIt("commonmark").enable("table").render(markdown)
-    html = ("<!doctype html><html><head><meta charset='utf-8'><title>dynplan report</title><style>"
-            "body{font-family:sans-serif;max-width:70em;margin:2em auto}table{border-collapse:collapse}"
-            "td,th{border:1px solid #ccc;padding:.2em .5em}img{image-rendering:pixelated;max-width:100%}"
-            f"</style></head><body>{body}</body></html>")  # fmt: skip
+    html = (
+        "<!doctype html><html><head><meta charset='utf-8'><title>dynplan report</title><style>"
+        "body{font-family:sans-serif;max-width:70em;margin:2em auto}table{border-collapse:collapse}"
+        "td,th{border:1px solid #ccc;padding:.2em .5em}img{image-rendering:pixelated;max-width:100%}"
+        f"</style></head><body>{body}</body></html>"
+    )
     md = write_bytes_atomic(out / "report.md", markdown.encode())
     return md, write_bytes_atomic(out / "report.html", html.encode())

@@ -13,7 +13,7 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.env.road_env import RoadEnv
 from dynplan.logs.format import AgentTrack
-from dynplan.planning.forward import ForwardModel, Prediction
+from dynplan.planning.forward import ForwardModel, Prediction, predict_together
 from dynplan.planning.mcts import Decision, MCTSPlanner, RandomPlanner
 
 #: Called after each decision with (t, position, prediction, decision) — e.g. to record imagined frames.
@@ -56,26 +56,6 @@ def run_episode(
 BatchDecisionHook = Callable[[int, int, np.ndarray, Prediction | None, Decision], None]
 
 
-def _predict(models: Sequence[ForwardModel], observed: Sequence[np.ndarray],
-             ks: Sequence[int]) -> tuple[list[Prediction], list[float]]:  # fmt: skip
-    """Each model's prediction of its own episode, and the ms each took: one `predict_batch` per group of models of
-    one type and `batch_key`, whose time is shared in proportion to what each asked for (`cost`)."""
-    out: list[Prediction | None] = [None] * len(models)
-    ms = [0.0] * len(models)
-    groups: dict[tuple[type, object], list[int]] = {}
-    for i, model in enumerate(models):
-        groups.setdefault((type(model), model.batch_key), []).append(i)
-    for (kind, _), members in groups.items():
-        start = time.perf_counter()
-        predictions = kind.predict_batch([models[i] for i in members], [observed[i] for i in members],
-                                         [ks[i] for i in members])  # fmt: skip
-        spent = (time.perf_counter() - start) * 1e3
-        costs = [models[i].cost(ks[i]) for i in members]
-        for i, prediction, cost in zip(members, predictions, costs, strict=True):
-            out[i], ms[i] = prediction, spent * cost / sum(costs)
-    return out, ms  # type: ignore[return-value]
-
-
 @dataclass
 class _Episode:
     """One episode of a lockstep batch: its environment, planner, model and horizon, and its track so far."""
@@ -116,8 +96,13 @@ class _Episode:
 
     def result(self) -> EpisodeResult:
         t, positions, actions, rewards, outcomes = zip(*self.steps, strict=True)
-        track = AgentTrack(np.array([self.first[0], *t]), np.array([self.first[1], *positions]), np.array(actions),
-                           np.array(rewards), tuple(outcomes))  # fmt: skip
+        track = AgentTrack(
+            np.array([self.first[0], *t]),
+            np.array([self.first[1], *positions]),
+            np.array(actions),
+            np.array(rewards),
+            tuple(outcomes),
+        )
         return EpisodeResult(self.world.seed, outcomes[-1], len(actions), float(rewards[-1]), self.times, track)
 
 
@@ -131,8 +116,10 @@ def _check(worlds: Sequence[World], planners: Sequence, models: Sequence, speeds
         raise ValueError(f"run_episodes: {n} worlds, {len(speeds)} agent speeds, {len(horizons)} rollout steps")
     wrong = [type(m).__name__ for m in models if m is not None and not isinstance(m, ForwardModel)]
     if wrong:
-        raise TypeError(f"run_episodes: {wrong[0]} is not a ForwardModel (name, predict, predict_batch, batch_key, "
-                        "cost): subclass dynplan.planning.forward.ForwardModel")  # fmt: skip
+        raise TypeError(
+            f"run_episodes: {wrong[0]} is not a ForwardModel (name, predict, predict_batch, batch_key, "
+            "cost): subclass dynplan.planning.forward.ForwardModel"
+        )
 
 
 def run_episodes(
@@ -163,8 +150,9 @@ def run_episodes(
     live = episodes
     while live:
         asking = [e for e in live if e.model is not None]
-        predicted, spent = _predict([e.model for e in asking], [e.world.frames[: e.env.t + 1] for e in asking],
-                                    [e.asks() for e in asking])  # fmt: skip
+        predicted, spent = predict_together(
+            [e.model for e in asking], [e.world.frames[: e.env.t + 1] for e in asking], [e.asks() for e in asking]
+        )
         predictions = {e.index: (p, ms) for e, p, ms in zip(asking, predicted, spent, strict=True)}
         still = []
         for e in live:

@@ -14,6 +14,7 @@ subclasses `ForwardModel` and writes `predict`; it batches with others only if i
 
 from __future__ import annotations
 
+import time
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -64,11 +65,35 @@ class ForwardModel(Protocol):
         return float(k)
 
     @classmethod
-    def predict_batch(cls, models: Sequence[ForwardModel], observed: Sequence[np.ndarray],
-                      ks: Sequence[int]) -> list[Prediction]:  # fmt: skip
+    def predict_batch(
+        cls, models: Sequence[ForwardModel], observed: Sequence[np.ndarray], ks: Sequence[int]
+    ) -> list[Prediction]:
         """Each model's prediction of its own episode: `observed[e]` (t_e+1, H, W) uint8, `ks[e]` frames ahead.
         `models` share one `batch_key` and this type. By default one `predict` after another."""
         return [model.predict(o, k) for model, o, k in zip(models, observed, ks, strict=True)]
+
+
+def predict_together(
+    models: Sequence[ForwardModel], observed: Sequence[np.ndarray], ks: Sequence[int]
+) -> tuple[list[Prediction], list[float]]:
+    """Each model's prediction of its own episode (`observed[e]`, `ks[e]` frames ahead) and the ms each took: one
+    `predict_batch` per group of models of one type and `batch_key`, whose time is shared in proportion to what each
+    asked for (`cost`). How every world's lockstep runner asks its episodes' models at a step."""
+    out: list[Prediction | None] = [None] * len(models)
+    ms = [0.0] * len(models)
+    groups: dict[tuple[type, object], list[int]] = {}
+    for i, model in enumerate(models):
+        groups.setdefault((type(model), model.batch_key), []).append(i)
+    for (kind, _), members in groups.items():
+        start = time.perf_counter()
+        predictions = kind.predict_batch(
+            [models[i] for i in members], [observed[i] for i in members], [ks[i] for i in members]
+        )
+        spent = (time.perf_counter() - start) * 1e3
+        costs = [models[i].cost(ks[i]) for i in members]
+        for i, prediction, cost in zip(members, predictions, costs, strict=True):
+            out[i], ms[i] = prediction, spent * cost / sum(costs)
+    return out, ms  # type: ignore[return-value]
 
 
 def goal_centres(frames: np.ndarray) -> np.ndarray:

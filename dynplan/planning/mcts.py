@@ -70,8 +70,15 @@ def goal_prior(position: np.ndarray, goal: np.ndarray, weights: tuple[float, ...
     """(8,) prior over actions from the bearing to `goal` (uniform if the goal is unknown). NumPy twin of the
     compiled `_prior`, for tests and tools."""
     out = np.empty(N_ACTIONS)
-    _prior(float(position[0]), float(position[1]), float(goal[0]), float(goal[1]),
-           ACTION_ANGLES_DEG.astype(np.float64), np.asarray(weights, np.float64), out)  # fmt: skip
+    _prior(
+        float(position[0]),
+        float(position[1]),
+        float(goal[0]),
+        float(goal[1]),
+        ACTION_ANGLES_DEG.astype(np.float64),
+        np.asarray(weights, np.float64),
+        out,
+    )
     return out
 
 
@@ -243,8 +250,7 @@ class MCTSPlanner:
     """PUCT MCTS agent. Call `act` once per decision with the agent's position, the frame index and the forward
     model's prediction; the chosen child's subtree, with its statistics, is the next call's root."""
 
-    def __init__(self, config: MCTSConfig | None = None, agent_speed: float = 1.0, max_steps: int = 203,
-                 seed: int = 0):  # fmt: skip
+    def __init__(self, config: MCTSConfig | None = None, agent_speed: float = 1.0, max_steps: int = 203, seed: int = 0):
         self.config = config or MCTSConfig()
         self.max_steps = max_steps
         self.deltas = action_deltas(agent_speed)
@@ -291,8 +297,9 @@ class MCTSPlanner:
         q = np.where(visits > 0, tree.value[children] / np.maximum(visits, 1), 0.0)
         action = self._choose(visits)
         self._next_root = int(children[action])
-        return Decision(action, visits.astype(np.int64), q, tree.prior[children].copy(),
-                        (time.perf_counter() - start) * 1e3)  # fmt: skip
+        return Decision(
+            action, visits.astype(np.int64), q, tree.prior[children].copy(), (time.perf_counter() - start) * 1e3
+        )
 
     def _choose(self, visits: np.ndarray) -> int:
         """Sample from visits^(1/temperature), computed in log space (temperature 0.01: the most visited)."""
@@ -322,5 +329,6 @@ class RandomPlanner:
         start = time.perf_counter()
         action = int(self.rng.integers(N_ACTIONS))
         uniform = np.full(N_ACTIONS, 1.0 / N_ACTIONS)
-        return Decision(action, np.zeros(N_ACTIONS, np.int64), np.zeros(N_ACTIONS), uniform,
-                        (time.perf_counter() - start) * 1e3)  # fmt: skip
+        return Decision(
+            action, np.zeros(N_ACTIONS, np.int64), np.zeros(N_ACTIONS), uniform, (time.perf_counter() - start) * 1e3
+        )

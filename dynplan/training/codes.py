@@ -59,14 +59,25 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         if array_name in group:
             del group[array_name]
         dims = ("episode", "time", "code_y", "code_x")
-        group.create_array(array_name, shape=(0, T, h, w), chunks=(1, T, h, w), dtype="uint16",
-                           dimension_names=dims, compressors=COMPRESSORS)  # fmt: skip
+        group.create_array(
+            array_name,
+            shape=(0, T, h, w),
+            chunks=(1, T, h, w),
+            dtype="uint16",
+            dimension_names=dims,
+            compressors=COMPRESSORS,
+        )
     codes = group[array_name]
     commit_rows(codes, done)  # rows after the recorded ones are from an interrupted encoding
 
     def record(stop: int) -> None:  # the first `stop` episodes are encoded, by this checkpoint, from these logs
-        codes.attrs.update(checkpoint=checkpoint, checkpoint_sha256=sha, config=model.config.model_dump(),
-                           episodes=stop, source_digest=episodes_digest(checksums[:stop]))  # fmt: skip
+        codes.attrs.update(
+            checkpoint=checkpoint,
+            checkpoint_sha256=sha,
+            config=model.config.model_dump(),
+            episodes=stop,
+            source_digest=episodes_digest(checksums[:stop]),
+        )
         # Readers that trust the consolidated metadata (zarr's default) see the array and its progress at once.
         with warnings.catch_warnings():
             warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")

@@ -149,8 +149,13 @@ def _run_epoch(stage: Stage, budget: TrainBudget, epoch: int, elapsed: float) ->
     }
 
 
-def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None,
-          tensorboard: str | os.PathLike | None = None) -> Path:  # fmt: skip
+def train(
+    out_dir: Path,
+    stage: Stage,
+    budget: TrainBudget,
+    on_epoch: Callable[[dict], None] | None = None,
+    tensorboard: str | os.PathLike | None = None,
+) -> Path:
     """Run `stage` in `out_dir` up to `budget.epochs`, resuming from `checkpoint.pt`; return the final checkpoint,
     or the latest if `budget.max_minutes` stopped it first. `tensorboard`: a folder that also receives every
     epoch's figures and the stage's images (`dynplan.training.tensorboard`)."""
@@ -170,10 +175,20 @@ def train(out_dir: Path, stage: Stage, budget: TrainBudget, on_epoch: Callable[[
         row = _run_epoch(stage, budget, epoch, elapsed)
         epoch, elapsed = row["epoch"], row["elapsed_s"]
         history.append(row)
-        checkpoint.save(latest, {"kind": stage.kind, "config": stage.config, "model": _cpu(stage.model.state_dict()),
-                                 "optimiser": _cpu(stage.optimiser.state_dict()), "epoch": epoch, "elapsed_s": elapsed,
-                                 "history": history, "torch_rng": torch.get_rng_state(),
-                                 "init_from": budget.init_from})  # fmt: skip
+        checkpoint.save(
+            latest,
+            {
+                "kind": stage.kind,
+                "config": stage.config,
+                "model": _cpu(stage.model.state_dict()),
+                "optimiser": _cpu(stage.optimiser.state_dict()),
+                "epoch": epoch,
+                "elapsed_s": elapsed,
+                "history": history,
+                "torch_rng": torch.get_rng_state(),
+                "init_from": budget.init_from,
+            },
+        )
         write_csv(out_dir / "metrics.csv", history)
         if stage.plot is not None:
             stage.plot(out_dir)

@@ -38,9 +38,15 @@ def _windows(dataset: WindowDataset) -> np.ndarray:
     return np.stack([dataset.array[int(e)] for e in dataset.episodes])
 
 
-def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathLike, config: PixelCNNConfig,
-                   budget: TrainBudget, on_epoch: Callable[[dict], None] | None = None,
-                   tensorboard: str | os.PathLike | None = None) -> Path:  # fmt: skip
+def train_pixelcnn(
+    store: str | os.PathLike,
+    codes: str,
+    out_dir: str | os.PathLike,
+    config: PixelCNNConfig,
+    budget: TrainBudget,
+    on_epoch: Callable[[dict], None] | None = None,
+    tensorboard: str | os.PathLike | None = None,
+) -> Path:
     """Train (or resume) the prior of the code array `codes` (e.g. "codes_default") of `store` in `out_dir`;
     `tensorboard`: a folder that also receives every epoch's figures and its predicted next frames."""
     store, out_dir = str(store), Path(out_dir)
@@ -49,14 +55,8 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         return done
     group = zarr.open_group(store, mode="r", use_consolidated=False)
     tokenizer = load_vqvae_checkpoint(group[codes].attrs["checkpoint"])
-    if tokenizer.config.codebook_size != config.codebook_size:
-        raise ValueError(f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
-                         f"for codebook_size={config.codebook_size}")  # fmt: skip
     device = budget.torch_device
-    model = ConditionalPixelCNN(config)
-    if config.codebook_init:  # a warm start (`init_from`), loaded later, replaces this
-        model.embed_codebook(tokenizer.quantizer.embed, torch.Generator().manual_seed(budget.seed))
-    model = model.to(device)
+    model = _prior(codes, tokenizer, config, budget).to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train_set = WindowDataset(store, "train", array=codes, context=config.context)
     if len(train_set.episodes) == 0:
@@ -87,13 +87,28 @@ def train_pixelcnn(store: str | os.PathLike, codes: str, out_dir: str | os.PathL
         return {"loss": out.loss.item(), "accuracy": out.accuracy.item(), "learning_rate": rate}
 
     evaluate, images = _validation_scores(model, tokenizer, (val_context, val_target, val_frames), device)
-    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate,
-                       images=images, unit="windows")  # fmt: skip
+    stage = loop.Stage(
+        KIND, config.model_dump(), model, optimiser, config.batch_size, step, evaluate, images=images, unit="windows"
+    )
     return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
 
 
-def _validation_scores(model: ConditionalPixelCNN, tokenizer: VQVAE, validation: tuple, device: torch.device
-                       ) -> tuple[Callable[[], dict[str, float]], Callable[[], dict[str, np.ndarray]]]:  # fmt: skip
+def _prior(codes: str, tokenizer: VQVAE, config: PixelCNNConfig, budget: TrainBudget) -> ConditionalPixelCNN:
+    """The prior to train on `codes`, its code embedding started from the tokenizer's codebook where configured."""
+    if tokenizer.config.codebook_size != config.codebook_size:
+        raise ValueError(
+            f"{codes} holds codes of K={tokenizer.config.codebook_size}; the prior is configured "
+            f"for codebook_size={config.codebook_size}"
+        )
+    model = ConditionalPixelCNN(config)
+    if config.codebook_init:  # a warm start (`init_from`), loaded later, replaces this
+        model.embed_codebook(tokenizer.quantizer.embed, torch.Generator().manual_seed(budget.seed))
+    return model
+
+
+def _validation_scores(
+    model: ConditionalPixelCNN, tokenizer: VQVAE, validation: tuple, device: torch.device
+) -> tuple[Callable[[], dict[str, float]], Callable[[], dict[str, np.ndarray]]]:
     """The epoch's evaluation on the `validation` windows (context, target, true frames) — loss, accuracy, and the
     greedy generation's grids and decoded frames — and the images of its last predicted next frames."""
     val_context, val_target, val_frames = validation
@@ -122,8 +137,12 @@ def _validation_scores(model: ConditionalPixelCNN, tokenizer: VQVAE, validation:
         shown["true"], shown["predicted"] = val_frames[generated[:6]], frames[:6]
         errors = frame_errors(val_frames[generated], frames, tokenizer.config.world)
         exact = (predicted == val_target[generated]).all(dim=(1, 2)).float().mean()
-        return {"val_loss": loss / len(val_target), "val_accuracy": accuracy / len(val_target),
-                "val_greedy_grid_exact": float(exact), **{f"val_next_{k}": v for k, v in errors.items()}}  # fmt: skip
+        return {
+            "val_loss": loss / len(val_target),
+            "val_accuracy": accuracy / len(val_target),
+            "val_greedy_grid_exact": float(exact),
+            **{f"val_next_{k}": v for k, v in errors.items()},
+        }
 
     def images() -> dict[str, np.ndarray]:
         return {"next_frame": comparison_columns(shown["true"], shown["predicted"])}

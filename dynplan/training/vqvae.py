@@ -36,8 +36,9 @@ def _validation_frames(store: str, n: int) -> np.ndarray:
     if len(val.episodes) == 0:
         val = FrameDataset(store, "all")  # tiny stores: score on what there is
     per_episode = max(1, -(-n // len(val.episodes)))
-    frames = [val.episode(i)[np.linspace(0, val.n_frames - 1, per_episode).astype(int)]
-              for i in range(len(val.episodes))]  # fmt: skip
+    frames = [
+        val.episode(i)[np.linspace(0, val.n_frames - 1, per_episode).astype(int)] for i in range(len(val.episodes))
+    ]
     return np.concatenate(frames)[:n]
 
 
@@ -91,8 +92,13 @@ def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 
     picks, decoded = _reconstructed(model, frames, n)
     fig, axes = plt.subplots(3, n, figsize=(2 * n, 6.4))
     for j in range(n):
-        for i, (image, title) in enumerate([(colorize(picks[j]), "true"), (colorize(decoded[j]), "decoded"),
-                                            (error_image(picks[j], decoded[j]), "error")]):  # fmt: skip
+        for i, (image, title) in enumerate(
+            [
+                (colorize(picks[j]), "true"),
+                (colorize(decoded[j]), "decoded"),
+                (error_image(picks[j], decoded[j]), "error"),
+            ]
+        ):
             axes[i, j].imshow(image, interpolation="nearest")
             axes[i, j].set_axis_off()
             axes[i, j].set_title(title, fontsize=8)
@@ -103,9 +109,14 @@ def plot_reconstructions(model: VQVAE, frames: np.ndarray, path: Path, n: int = 
     os.replace(tmp, path)
 
 
-def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQVAEConfig, budget: TrainBudget,
-                on_epoch: Callable[[dict], None] | None = None,
-                tensorboard: str | os.PathLike | None = None) -> Path:  # fmt: skip
+def train_vqvae(
+    store: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: VQVAEConfig,
+    budget: TrainBudget,
+    on_epoch: Callable[[dict], None] | None = None,
+    tensorboard: str | os.PathLike | None = None,
+) -> Path:
     """Train (or resume training of) a VQ-VAE in `out_dir` up to `budget.epochs`; returns the final checkpoint
     `out_dir/vqvae.pt`, or the latest one if `budget.max_minutes` stopped it first.
 
@@ -132,18 +143,28 @@ def train_vqvae(store: str | os.PathLike, out_dir: str | os.PathLike, config: VQ
     def plot(folder: Path) -> None:
         plot_reconstructions(model, val, folder / "reconstructions.png")
 
-    stage = loop.Stage(KIND, config.model_dump(), model, optimiser, config.batch_size, step,
-                       evaluate=lambda: evaluate(model, val), epoch_end=epoch_end, plot=plot,
-                       images=lambda: {"reconstructions": reconstruction_image(model, val)},
-                       unit="frames" if config.codebook_fit == "learned" else "patches")  # fmt: skip
+    stage = loop.Stage(
+        KIND,
+        config.model_dump(),
+        model,
+        optimiser,
+        config.batch_size,
+        step,
+        evaluate=lambda: evaluate(model, val),
+        epoch_end=epoch_end,
+        plot=plot,
+        images=lambda: {"reconstructions": reconstruction_image(model, val)},
+        unit="frames" if config.codebook_fit == "learned" else "patches",
+    )
     return loop.train(out_dir, stage, budget, on_epoch, tensorboard)
 
 
 Step = Callable[[torch.Generator], dict[str, float]]
 
 
-def _frame_steps(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
-                 ) -> tuple[Step, Callable[[], dict[str, float]]]:  # fmt: skip
+def _frame_steps(
+    model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
+) -> tuple[Step, Callable[[], dict[str, float]]]:
     """The usual VQ-VAE training: batches of whole frames through encoder, quantizer and decoder."""
     E, T = frames.shape[:2]
     device = next(model.parameters()).device
@@ -191,8 +212,9 @@ def patch_counts(frames: np.ndarray, patch: tuple[int, int]) -> tuple[np.ndarray
     return distinct_patches(picked, patch)
 
 
-def _content_fit(model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
-                 ) -> tuple[Step, Callable[[], dict[str, float]]]:  # fmt: skip
+def _content_fit(
+    model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
+) -> tuple[Step, Callable[[], dict[str, float]]]:
     """`codebook_fit="contents"`: a patch-local model sees each patch alone, so it can be trained on the distinct
     patch contents instead of frames — drawn uniformly, so a content seen once in 10⁵ patches is learned as well as
     the empty road. Each step autoencodes a batch of them (no quantisation); each epoch ends by setting the

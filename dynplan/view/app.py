@@ -42,18 +42,29 @@ class NpmPackage:
 
 STUDIO_VERSION = "1.48.0"
 PACKAGES = (
-    NpmPackage("@foxglove/studio-base", STUDIO_VERSION,
-               "sha512-EY8cYoHUm6VyTSVZBdfn5EJK2bRwTfAjH92H5wgAEcnKyeCUyKkxjgwbqO2jKwRJGa+7VPaEHHF167BzFh+N4A==",
-               (("package/package.json", "studio-base.package.json"),), assets=True),
-    NpmPackage("react", "17.0.2",
-               "sha512-gnhPt75i/dq/z3/6q/0asP78D0u592D5L1pd7M8P+dck6Fu/jJeL6iVVK23fptSUZj8Vjf++7wXA8UNclGQcbA==",
-               (("package/umd/react.production.min.js", "react.production.min.js"),
-                ("package/LICENSE", "LICENSE.react"))),
-    NpmPackage("react-dom", "17.0.2",
-               "sha512-s4h96KtLDUQlsENhMn1ar8t2bEa+q/YAtj8pPPdIjPDGBDIVNsrD9aXNWqspUe6AzKCIG0C1HZZLqLV7qpOBGA==",
-               (("package/umd/react-dom.production.min.js", "react-dom.production.min.js"),
-                ("package/LICENSE", "LICENSE.react-dom"))),
-)  # fmt: skip
+    NpmPackage(
+        "@foxglove/studio-base",
+        STUDIO_VERSION,
+        "sha512-EY8cYoHUm6VyTSVZBdfn5EJK2bRwTfAjH92H5wgAEcnKyeCUyKkxjgwbqO2jKwRJGa+7VPaEHHF167BzFh+N4A==",
+        (("package/package.json", "studio-base.package.json"),),
+        assets=True,
+    ),
+    NpmPackage(
+        "react",
+        "17.0.2",
+        "sha512-gnhPt75i/dq/z3/6q/0asP78D0u592D5L1pd7M8P+dck6Fu/jJeL6iVVK23fptSUZj8Vjf++7wXA8UNclGQcbA==",
+        (("package/umd/react.production.min.js", "react.production.min.js"), ("package/LICENSE", "LICENSE.react")),
+    ),
+    NpmPackage(
+        "react-dom",
+        "17.0.2",
+        "sha512-s4h96KtLDUQlsENhMn1ar8t2bEa+q/YAtj8pPPdIjPDGBDIVNsrD9aXNWqspUe6AzKCIG0C1HZZLqLV7qpOBGA==",
+        (
+            ("package/umd/react-dom.production.min.js", "react-dom.production.min.js"),
+            ("package/LICENSE", "LICENSE.react-dom"),
+        ),
+    ),
+)
 #: The app folder's name in the cache: the pinned version, so that another pin installs beside it.
 APP_FOLDER = f"foxglove-studio-{STUDIO_VERSION}"
 MANIFEST = "manifest.json"
@@ -92,8 +103,10 @@ def install(cache: Path) -> Path:
         return found
     npm = shutil.which("npm")
     if npm is None:
-        raise InputError("npm not found: the viewer fetches Foxglove Studio from the npm registry with it "
-                         "(Debian: apt-get install npm)")  # fmt: skip
+        raise InputError(
+            "npm not found: the viewer fetches Foxglove Studio from the npm registry with it "
+            "(Debian: apt-get install npm)"
+        )
     with exclusive(cache / ".install.lock", waiting="waiting for another install of the viewer's app"):
         if (found := installed_app(cache)) is not None:  # another install finished while this one waited
             return found

@@ -71,16 +71,26 @@ class Browser:
         if hasattr(os, "geteuid") and os.geteuid() == 0:
             flags.append("--no-sandbox")  # Chromium refuses to start its sandbox as root
         try:  # its own process group, so that its helpers end with it; and it ends if this process dies
-            self._process = subprocess.Popen([self.executable, *flags, "about:blank"], stdin=subprocess.DEVNULL,
-                                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                             start_new_session=True, preexec_fn=die_with_parent)  # fmt: skip
+            self._process = subprocess.Popen(
+                [self.executable, *flags, "about:blank"],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                start_new_session=True,
+                preexec_fn=die_with_parent,
+            )
         except OSError as error:
             self._profile.cleanup()
             raise InputError(f"{self.executable}: cannot start ({error.strerror})") from None
         try:
             self._socket = connect(self._page_socket(), max_size=None, open_timeout=START_TIMEOUT_S)
-            self.call("Emulation.setDeviceMetricsOverride", width=self.size[0], height=self.size[1],
-                      deviceScaleFactor=1, mobile=False)  # fmt: skip
+            self.call(
+                "Emulation.setDeviceMetricsOverride",
+                width=self.size[0],
+                height=self.size[1],
+                deviceScaleFactor=1,
+                mobile=False,
+            )
             for domain in ("Page", "Network", "Runtime"):
                 self.call(f"{domain}.enable")
             # the app reads files in web workers: attach to each as it starts, paused until it is watched too

@@ -80,8 +80,10 @@ class ViewReport:
 
     def summary(self) -> str:
         drawn = sum(p.drawn for p in self.panels)
-        return (f"{len(self.topics)} topics listed, {len(self.problems)} problems, {drawn} of {len(self.panels)} "
-                f"panels drawn, {len(self.outside_requests)} requests off 127.0.0.1, {self.seconds:.1f} s")  # fmt: skip
+        return (
+            f"{len(self.topics)} topics listed, {len(self.problems)} problems, {drawn} of {len(self.panels)} "
+            f"panels drawn, {len(self.outside_requests)} requests off 127.0.0.1, {self.seconds:.1f} s"
+        )
 
 
 @dataclass(frozen=True)
@@ -123,14 +125,18 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
             problems = ()
         png = browser.screenshot()
         seconds = time.monotonic() - start
-        outside = tuple(u for u in browser.requests if u.split(":")[0] in ("http", "https", "ws", "wss")
-                        and not u.startswith(server.origin + "/"))  # fmt: skip
+        outside = tuple(
+            u
+            for u in browser.requests
+            if u.split(":")[0] in ("http", "https", "ws", "wss") and not u.startswith(server.origin + "/")
+        )
         errors = tuple(browser.errors)
         log_requests = sum(u == server.origin + log_url for u in browser.requests)
     write_bytes_atomic(out, png)
     pixels = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
-    panels = tuple(Panel(p["id"], tuple(p["box"]), p["canvas"] and tuple(p["canvas"]), _drawn(p, pixels))
-                   for p in state["panels"])  # fmt: skip
+    panels = tuple(
+        Panel(p["id"], tuple(p["box"]), p["canvas"] and tuple(p["canvas"]), _drawn(p, pixels)) for p in state["panels"]
+    )
     return ViewReport(_topics(state["lines"]), problems, panels, outside, log_requests, errors, seconds, complete)
 
 

@@ -21,9 +21,18 @@ from dynplan.cli import InputError
 from dynplan.view.app import app_files
 
 PAGE = Path(__file__).parent / "page" / "index.html"
-TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript", ".css": "text/css",
-         ".json": "application/json", ".wasm": "application/wasm", ".png": "image/png", ".svg": "image/svg+xml",
-         ".woff": "font/woff", ".woff2": "font/woff2", ".ttf": "font/ttf"}  # fmt: skip
+TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".js": "text/javascript",
+    ".css": "text/css",
+    ".json": "application/json",
+    ".wasm": "application/wasm",
+    ".png": "image/png",
+    ".svg": "image/svg+xml",
+    ".woff": "font/woff",
+    ".woff2": "font/woff2",
+    ".ttf": "font/ttf",
+}
 _RANGE = re.compile(r"bytes=(\d*)-(\d*)$")
 _BLOCK = 1 << 20
 

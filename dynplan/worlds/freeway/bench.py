@@ -6,7 +6,8 @@ there (played by the search itself); against the 100 ms target of a learned deci
 same run: the same rule over every action sequence, without merging those that coincide. The learned agent (the
 committed Freeway world model) plays the game's first `LEARNED_STEPS` steps twice in the same process: as it plays
 (a decision whose newest frame the last one predicted continues that chain) and with the kept chains dropped before
-every decision (each generates all k grids), the baseline.
+every decision (each generates all k grids), the baseline; then `LOCKSTEP` episodes play together (`Lockstep`: one
+batched prediction a step), timed by the wall clock per decision.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ import torch
 
 from dynplan.bench.timing import pin_to_one_core
 from dynplan.models.chain import forget_greedy
-from dynplan.worlds.freeway.evaluation import play_turns, world_model_for
+from dynplan.planning.forward import ForwardModel
+from dynplan.worlds.freeway.evaluation import Lockstep, play_turns, world_model_for
 from dynplan.worlds.freeway.game import Chicken, FreewayEpisode, FreewayGame, chicken_frames, record_mode, step_frames
 from dynplan.worlds.freeway.search import STUN_PENALTY, ChickenSearch, plan_chicken
 
@@ -28,6 +30,8 @@ TARGET_MS = 100.0
 NAIVE_DECISIONS = 20
 #: Steps of the game the learned agent plays in each of its two cases.
 LEARNED_STEPS = 400
+#: Episodes the lockstep case plays together, for how many steps, and its target (ms a decision, amortised).
+LOCKSTEP, LOCKSTEP_STEPS, LOCKSTEP_MS = 10, 200, 20.0
 
 
 def naive_action(chicken: Chicken, frames: np.ndarray, k: int) -> int:
@@ -63,8 +67,12 @@ def bench_freeway() -> dict[str, dict[str, float]]:
                 states.append(decision.states)
             if game.step(decision.action).done:
                 break
-        results[f"search_k{k}"] = {"median_ms": round(float(np.median(times)), 3), "decisions": len(times),
-                                   "median_states": int(np.median(states)), "target_ms": TARGET_MS}  # fmt: skip
+        results[f"search_k{k}"] = {
+            "median_ms": round(float(np.median(times)), 3),
+            "decisions": len(times),
+            "median_states": int(np.median(states)),
+            "target_ms": TARGET_MS,
+        }
     results.update(_learned())
     naive = []
     for t in range(0, 4 * NAIVE_DECISIONS, 4):
@@ -78,8 +86,8 @@ def bench_freeway() -> dict[str, dict[str, float]]:
 
 
 def _learned(k: int = 8) -> dict[str, dict[str, float]]:
-    """The learned agent's decisions (prediction and search) over the game's first steps: as it plays, and with
-    every kept chain dropped before each decision."""
+    """The learned agent's decisions (prediction and search) over the game's first steps: as it plays, with every
+    kept chain dropped before each decision, and `LOCKSTEP` episodes played together (wall time per decision)."""
     torch.set_num_threads(1)  # one core: the prior's kernel runs its grids on torch's threads
     model, search, out = world_model_for("learned"), ChickenSearch(horizon=k), {}
     for case, keep in (("learned_k8", True), ("learned_k8_fresh", False)):
@@ -90,7 +98,29 @@ def _learned(k: int = 8) -> dict[str, dict[str, float]]:
             score += turn.step.reward
             if not keep:
                 forget_greedy()
-        out[case] = {"median_ms": round(float(np.median(times)), 3), "mean_ms": round(float(np.mean(times)), 3),
-                     "decisions": len(times), "score": score, "target_ms": TARGET_MS}  # fmt: skip
+        out[case] = {
+            "median_ms": round(float(np.median(times)), 3),
+            "mean_ms": round(float(np.mean(times)), 3),
+            "decisions": len(times),
+            "score": score,
+            "target_ms": TARGET_MS,
+        }
     out["learned_k8"]["ratio_fresh"] = round(out["learned_k8_fresh"]["median_ms"] / out["learned_k8"]["median_ms"], 2)
+    out["learned_k8_lockstep"] = _lockstep(model, search)
+    out["learned_k8_lockstep"]["ratio_single"] = round(
+        out["learned_k8"]["mean_ms"] / out["learned_k8_lockstep"]["amortised_ms"], 2
+    )
     return out
+
+
+def _lockstep(model: ForwardModel, search: ChickenSearch) -> dict[str, float]:
+    """`LOCKSTEP` episodes (NOOP starts 0, 1, …) played together for `LOCKSTEP_STEPS` steps: the wall time per
+    decision (against the single episode's mean, `learned_k8`, in the same process)."""
+    forget_greedy()
+    episodes = [FreewayEpisode(noop_start=n) for n in range(LOCKSTEP)]
+    lockstep, decisions = Lockstep("learned", episodes, search, list(range(LOCKSTEP)), model), 0
+    start = time.perf_counter()
+    for _ in range(LOCKSTEP_STEPS):
+        decisions += len(lockstep.advance())
+    amortised = (time.perf_counter() - start) * 1e3 / decisions
+    return {"amortised_ms": round(amortised, 3), "episodes": LOCKSTEP, "decisions": decisions, "target_ms": LOCKSTEP_MS}

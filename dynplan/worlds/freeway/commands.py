@@ -19,7 +19,7 @@ from dynplan.worlds.freeway.evaluation import (
     TECHNIQUES,
     FreewayPlan,
     case_of,
-    evaluate_episode,
+    evaluate_episodes,
     read_run,
     summarise,
     world_model_for,
@@ -27,7 +27,7 @@ from dynplan.worlds.freeway.evaluation import (
 from dynplan.worlds.freeway.game import FreewayEpisode
 from dynplan.worlds.freeway.play import HORIZONS, FreewayPlay
 from dynplan.worlds.freeway.replay import GIF_STEPS, default_replay_path, replay_freeway, replayable
-from dynplan.worlds.freeway.results import RUNS, SETTINGS, replay_check, weights_entry
+from dynplan.worlds.freeway.results import RUNS, SHOWN_RUNS, replay_check, settings, weights_entry
 from dynplan.worlds.freeway.search import ChickenSearch
 
 RESULTS_DIR = "datasets/results/freeway"
@@ -46,18 +46,23 @@ class FreewayEvaluation(Config):
     episodes: int = Field(20, ge=1, le=1000, description="episodes of each mode")
     seed: int = Field(0, ge=0, le=2**31, description="seed of the NOOP starts' draw")
     horizon: int = Field(8, ge=1, le=64, description="horizon k: predicted frames the search consults")
+    batch: int = Field(10, ge=1, le=1000, description="episodes of a technique and mode played together in lockstep")
+    sticky: float = Field(0.0, ge=0.0, le=1.0, description="the game's sticky actions: a run's own setting")
     results: str = Field(RESULTS_DIR, description="where runs are written")
     run: str = Field("evaluation", description="the run to play into")
     model_dir: str | None = Field(None, description="the learned technique's world model (None: the committed)")
     role: str | None = Field(None, description="the run's role (None: by its name)")
 
     def plans(self) -> list[FreewayPlan]:
-        return [FreewayPlan(mode=m, episodes=self.episodes, seed=self.seed) for m in self.modes]
+        return [self.plan(m) for m in self.modes]
+
+    def plan(self, mode: int) -> FreewayPlan:
+        return FreewayPlan(mode=mode, episodes=self.episodes, seed=self.seed, sticky=self.sticky)
 
 
 class Evaluate:
-    """`python -m flows.evaluate --world freeway`: Freeway's techniques on the real game, one Prefect task an
-    episode.
+    """`python -m flows.evaluate --world freeway`: Freeway's techniques on the real game, one Prefect task a
+    lockstep batch (`--batch` episodes of a technique and mode played together).
 
     Plays `--episodes` NOOP starts (drawn from `--seed`) of each `--modes` game mode with each technique (`oracle`:
     the true future, `learned`: the future Freeway's world model imagines, `extrapolate`: each lane's cars moved on
@@ -95,6 +100,20 @@ class Evaluate:
             "--horizon", type=bounded(ChickenSearch, "horizon"), default=8, help=field_help(ChickenSearch, "horizon")
         )
         parser.add_argument(
+            "--sticky",
+            type=bounded(FreewayPlan, "sticky"),
+            default=None,
+            help="probability that the game repeats its last action at a frame, a run's own setting (default: "
+            + ", ".join(f"{p:g} for run {r!r}" for r, p in SHOWN_RUNS.items())
+            + ", else 0)",
+        )
+        parser.add_argument(
+            "--batch",
+            type=bounded(FreewayEvaluation, "batch"),
+            default=FreewayEvaluation.model_fields["batch"].default,
+            help=field_help(FreewayEvaluation, "batch"),
+        )
+        parser.add_argument(
             "--results-dir",
             type=PathArgument(PathKind.OUTPUT_FOLDER),
             default=RESULTS_DIR,
@@ -114,6 +133,8 @@ class Evaluate:
             episodes=args.episodes,
             seed=args.seed,
             horizon=args.horizon,
+            batch=args.batch,
+            sticky=SHOWN_RUNS.get(args.run, 0.0) if args.sticky is None else args.sticky,
             results=args.results_dir,
             run=args.run,
             model_dir=args.model_dir,
@@ -122,25 +143,30 @@ class Evaluate:
     def start(self, request: FreewayEvaluation, command: str) -> list[dict]:
         """Begin (or extend) the run's manifest; the episodes it does not hold yet, one job each."""
         run = Run(request.results, request.run, RUNS)
-        role = request.role or ("evaluation" if request.run == "evaluation" else "candidate")
+        role = request.role or ("evaluation" if request.run in SHOWN_RUNS else "candidate")
         learned = "learned" in request.techniques
         models = {MODEL: weights_entry(MODEL, request.model_dir)} if learned else {}
-        manifest = run.start(role, SETTINGS, models, command)
+        manifest = run.start(role, settings(request.sticky), models, command)
         jobs = []
         for plan in request.plans():
             for technique in request.techniques:
-                for i in range(request.episodes):
-                    case = case_of(technique, plan, i, request.horizon)
-                    if run.find(case, RUNS.expected(manifest, case)) is None:
-                        jobs.append({"mode": plan.mode, "technique": technique, "index": i})
+                missing = [
+                    i
+                    for i in range(request.episodes)
+                    if run.find(case := case_of(technique, plan, i, request.horizon), RUNS.expected(manifest, case))
+                    is None
+                ]
+                for first in range(0, len(missing), request.batch):
+                    batch = missing[first : first + request.batch]
+                    jobs.append({"mode": plan.mode, "technique": technique, "indices": batch})
         return jobs
 
     def play(self, request: FreewayEvaluation, job: dict) -> dict:
         search = ChickenSearch(horizon=request.horizon)
         model = world_model_for(job["technique"], request.model_dir)
-        plan = FreewayPlan(mode=job["mode"], episodes=request.episodes, seed=request.seed)
-        run = Run(request.results, request.run, RUNS)
-        return evaluate_episode(run, job["technique"], plan, job["index"], search, model)
+        plan, run = request.plan(job["mode"]), Run(request.results, request.run, RUNS)
+        rows = evaluate_episodes(run, job["technique"], plan, job["indices"], search, model)
+        return {"mode": job["mode"], "technique": job["technique"], "episodes": len(rows)}
 
     def summary(self, request: FreewayEvaluation) -> list[dict]:
         return summarise(read_run(request.results, request.run))
@@ -148,9 +174,10 @@ class Evaluate:
     def check(self, request: FreewayEvaluation) -> list[str]:
         """Replay every counted row of the run in a fresh emulator: one line per row whose actions do not give its
         score, knocks and steps (none: every score holds)."""
-        problems = []
-        for row in progress(read_run(request.results, request.run), description="rows replayed"):
-            problem = replay_check(row)
+        problems, run = [], Run(request.results, request.run, RUNS)
+        run_settings = run.manifest()["settings"]
+        for row in progress(run.current(), description="rows replayed"):
+            problem = replay_check(row, run_settings)
             if problem is not None:
                 problems.append(" ".join(f"{k}={row[k]}" for k in RUNS.case_keys) + f": {problem}")
         return problems

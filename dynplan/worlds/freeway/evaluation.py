@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -24,7 +24,7 @@ from pydantic import Field
 from dynplan.config import Config
 from dynplan.evaluation.store import Run, code_version
 from dynplan.models.world_model import load_world_model
-from dynplan.planning.forward import ForwardModel
+from dynplan.planning.forward import ForwardModel, predict_together
 from dynplan.worlds.freeway import WORLD
 from dynplan.worlds.freeway.game import (
     ROAD_VALUES,
@@ -32,10 +32,12 @@ from dynplan.worlds.freeway.game import (
     FreewayEpisode,
     FreewayGame,
     FreewayStep,
+    emulator_seed,
+    episode_seed,
     extrapolated,
     record_mode,
 )
-from dynplan.worlds.freeway.results import RUNS
+from dynplan.worlds.freeway.results import RUNS, STICKY_RUN
 from dynplan.worlds.freeway.search import ChickenSearch, plan_chicken
 
 TECHNIQUES = ("oracle", "learned", "extrapolate", "zero", "up", "random")
@@ -53,11 +55,18 @@ class FreewayPlan(Config):
     mode: int = Field(0, ge=0, le=7, description="the game mode (its traffic)")
     episodes: int = Field(20, ge=1, le=1000, description="episodes of the mode")
     seed: int = Field(0, ge=0, le=2**31, description="seed of the NOOP starts' draw")
+    sticky: float = Field(0.0, ge=0.0, le=1.0, description="the game's sticky actions (0: none)")
 
     def episode_list(self) -> list[FreewayEpisode]:
-        """The episodes: NOOP starts drawn uniformly from 0 … 30 with the seed and the mode."""
+        """The episodes: NOOP starts drawn uniformly from 0 … 30 with the seed and the mode; with sticky actions,
+        each game's frames repeat as its own seed draws them."""
         starts = np.random.default_rng([self.seed, self.mode]).integers(0, 31, self.episodes)
-        return [FreewayEpisode(mode=self.mode, noop_start=int(n)) for n in starts]
+        return [self.episode(i, int(n)) for i, n in enumerate(starts)]
+
+    def episode(self, index: int, noop_start: int) -> FreewayEpisode:
+        """Episode `index`, from NOOP start `noop_start`."""
+        seed = emulator_seed(self.seed, index) if self.sticky else 0
+        return FreewayEpisode(mode=self.mode, noop_start=noop_start, sticky=self.sticky, emulator_seed=seed)
 
 
 @dataclass(frozen=True)
@@ -106,17 +115,24 @@ def world_model_for(technique: str, model_dir: str | os.PathLike | None = None) 
     return load_world_model(model_dir, MODEL) if technique == "learned" else None
 
 
-def searched_frames(observed: list[np.ndarray], search: ChickenSearch, technique: str,
-                    future: np.ndarray | None = None, model: ForwardModel | None = None) -> np.ndarray:  # fmt: skip
+def searched_frames(
+    observed: list[np.ndarray],
+    search: ChickenSearch,
+    technique: str,
+    future: np.ndarray | None = None,
+    model: ForwardModel | None = None,
+    ahead: np.ndarray | None = None,
+) -> np.ndarray:
     """The lanes `technique` searches at a decision: the frame now (the last `observed`) and the k after it — the
     true `future` (the oracle: the recording from the frame now on), the ones `model` imagines from the observed
-    frames (learned), the lanes moved on at their recent speeds (extrapolate; the frame now held still before a
-    second frame is observed), or lanes that hold no car (zero)."""
+    frames (learned; or `ahead`, when they were predicted with others'), the lanes moved on at their recent speeds
+    (extrapolate; the frame now held still before a second frame is observed), or lanes that hold no car (zero)."""
     if technique == "oracle":
         return future[: search.horizon + 1]
     now = observed[-1]
     if technique == "learned":
-        ahead = model.predict(np.stack(observed[-OBSERVED:]), search.horizon).frames
+        if ahead is None:
+            ahead = model.predict(np.stack(observed[-OBSERVED:]), search.horizon).frames
     elif technique == "extrapolate":
         history = np.stack(observed[-EXTRAPOLATED - 1 :])
         ahead = extrapolated(history, search.horizon) if len(history) > 1 else np.repeat(now[None], search.horizon, 0)
@@ -134,68 +150,185 @@ def check_technique(technique: str, model: ForwardModel | None) -> None:
         raise ValueError(f"technique {technique!r} {needs}")
 
 
-def play_turns(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0,
-               model: ForwardModel | None = None) -> Iterator[Turn]:  # fmt: skip
-    """Play `episode` of the real game with `technique`, one turn at a time, to the game's end; `model`: the world
-    model a learned agent imagines the lanes with."""
-    check_technique(technique, model)
-    future = record_mode(episode.mode).frames[episode.noop_start :] if technique == "oracle" else None
-    game, rng = FreewayGame(episode), np.random.default_rng(seed)
-    observed, t = [game.world_frame()], 0
-    while True:
-        chicken, frames, ms, start = game.chicken, None, None, time.perf_counter()
-        if technique in PLANNERS:
-            frames = searched_frames(observed, search, technique, None if future is None else future[t:], model)
-            action = plan_chicken(chicken, frames, search).action
-            ms = (time.perf_counter() - start) * 1e3
-        else:
-            action = 1 if technique == "up" else int(rng.integers(0, 3))
-        step = game.step(action)
-        yield Turn(chicken, frames, action, ms, step)
-        if step.done:
-            return
-        observed, t = [*observed[-OBSERVED + 1 :], step.frame], t + 1
+class Lockstep:
+    """`episodes` of the real game played together by `technique`, episode i drawing its random actions from
+    `seeds[i]`: each `advance` makes one decision in every episode still playing, the learned technique's lanes
+    from one batched prediction of all of them (`predict_together`), whose time is shared between them."""
+
+    def __init__(
+        self,
+        technique: str,
+        episodes: Sequence[FreewayEpisode],
+        search: ChickenSearch,
+        seeds: Sequence[int],
+        model: ForwardModel | None = None,
+    ) -> None:
+        check_technique(technique, model)
+        if len(seeds) != len(episodes):
+            raise ValueError(f"Lockstep: {len(episodes)} episodes and {len(seeds)} seeds")
+        self.technique, self.search, self.model = technique, search, model
+        self.games = [FreewayGame(episode) for episode in episodes]
+        self.rngs = [np.random.default_rng(seed) for seed in seeds]
+        recorded = {m: record_mode(m).frames for m in {e.mode for e in episodes}} if technique == "oracle" else {}
+        self.futures = [recorded[e.mode][e.noop_start :] if recorded else None for e in episodes]
+        self.observed = [[game.world_frame()] for game in self.games]
+        self.playing, self.t = list(range(len(episodes))), 0
+
+    def advance(self) -> list[tuple[int, Turn]]:
+        """One step of every episode still playing: (episode, its turn), in episode order."""
+        playing, turns = self.playing, []
+        ahead, shared = self._predicted(playing)
+        for j, i in enumerate(playing):
+            game, start, frames, ms = self.games[i], time.perf_counter(), None, None
+            if self.technique in PLANNERS:
+                future = None if self.futures[i] is None else self.futures[i][self.t :]
+                frames = searched_frames(self.observed[i], self.search, self.technique, future, ahead=ahead[j])
+                action = plan_chicken(game.chicken, frames, self.search).action
+                ms = shared[j] + (time.perf_counter() - start) * 1e3
+            else:
+                action = 1 if self.technique == "up" else int(self.rngs[i].integers(0, 3))
+            chicken, step = game.chicken, game.step(action)
+            turns.append((i, Turn(chicken, frames, action, ms, step)))
+            self.observed[i] = [*self.observed[i][-OBSERVED + 1 :], step.frame]
+        self.playing, self.t = [i for i, turn in turns if not turn.step.done], self.t + 1
+        return turns
+
+    def _predicted(self, playing: list[int]) -> tuple[list[np.ndarray | None], list[float]]:
+        """The learned lanes ahead of each episode playing, from one batched prediction, and each one's share of its
+        milliseconds (none and 0 for the other techniques)."""
+        if self.technique != "learned":
+            return [None] * len(playing), [0.0] * len(playing)
+        observed = [np.stack(self.observed[i][-OBSERVED:]) for i in playing]
+        predictions, ms = predict_together([self.model] * len(playing), observed, [self.search.horizon] * len(playing))
+        return [p.frames for p in predictions], ms
 
 
-def play_episode(technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0,
-                 model: ForwardModel | None = None) -> FreewayResult:  # fmt: skip
+def play_turns(
+    technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0, model: ForwardModel | None = None
+) -> Iterator[Turn]:
+    """Play `episode` of the real game with `technique`, one turn at a time, to the game's end (a lockstep of one);
+    `model`: the world model a learned agent imagines the lanes with."""
+    lockstep = Lockstep(technique, [episode], search, [seed], model)
+    while lockstep.playing:
+        yield lockstep.advance()[0][1]
+
+
+class Tally:
+    """What an episode's turns scored so far, kept as they are played (a game's turns hold its frames): score,
+    knocks, steps, the decisions' ms and the actions."""
+
+    def __init__(self) -> None:
+        self.score, self.knocks, self.ms, self.actions = 0.0, 0, [], []
+
+    def add(self, turn: Turn) -> None:
+        self.score += float(turn.step.reward)
+        self.knocks += int(turn.chicken.timer == 0 and turn.step.chicken.knocked)
+        if turn.decision_ms is not None:
+            self.ms.append(turn.decision_ms)
+        self.actions.append(str(turn.action))
+
+    def result(self, technique: str, episode: FreewayEpisode, horizon: int) -> FreewayResult:
+        median = round(float(np.median(self.ms)), 3) if self.ms else None
+        actions = "".join(self.actions)
+        return FreewayResult(
+            technique,
+            episode.mode,
+            episode.noop_start,
+            -1,
+            horizon,
+            self.score,
+            self.knocks,
+            len(actions),
+            median,
+            actions,
+        )
+
+
+def play_episodes(
+    technique: str,
+    episodes: Sequence[FreewayEpisode],
+    search: ChickenSearch,
+    seeds: Sequence[int],
+    model: ForwardModel | None = None,
+) -> Iterator[tuple[int, FreewayResult]]:
+    """Play `episodes` of the real game together with `technique` (`Lockstep`), to each game's end: (episode, its
+    score, knocks, steps, decision ms and actions) as each ends."""
+    lockstep = Lockstep(technique, episodes, search, seeds, model)
+    tallies = [Tally() for _ in episodes]
+    while lockstep.playing:
+        for i, turn in lockstep.advance():
+            tallies[i].add(turn)
+            if turn.step.done:
+                yield i, tallies[i].result(technique, episodes[i], search.horizon)
+
+
+def play_episode(
+    technique: str, episode: FreewayEpisode, search: ChickenSearch, seed: int = 0, model: ForwardModel | None = None
+) -> FreewayResult:
     """Play `episode` of the real game with `technique` to the game's end: its score, knocks, steps, decision ms
     and actions."""
-    return result_of(list(play_turns(technique, episode, search, seed, model)), technique, episode, search.horizon)
+    return next(play_episodes(technique, [episode], search, [seed], model))[1]
 
 
 def result_of(turns: list[Turn], technique: str, episode: FreewayEpisode, horizon: int) -> FreewayResult:
     """What `turns` (an episode's, played by `technique`) scored: score, knocks, steps, decision ms and actions."""
-    knocks = sum(turn.chicken.timer == 0 and turn.step.chicken.knocked for turn in turns)
-    ms = [turn.decision_ms for turn in turns if turn.decision_ms is not None]
-    median = round(float(np.median(ms)), 3) if ms else None
-    score, actions = float(sum(turn.step.reward for turn in turns)), "".join(str(turn.action) for turn in turns)
-    return FreewayResult(technique, episode.mode, episode.noop_start, -1, horizon, score, int(knocks), len(turns),
-                         median, actions)  # fmt: skip
+    tally = Tally()
+    for turn in turns:
+        tally.add(turn)
+    return tally.result(technique, episode, horizon)
 
 
 def case_of(technique: str, plan: FreewayPlan, index: int, horizon: int) -> dict:
     """The case of episode `index` of `plan` played by `technique` at `horizon`, as a run's row names it."""
     model = MODEL if technique == "learned" else None
-    return {"technique": technique, "model": model, "mode": plan.mode, "seed": plan.seed, "episode": index,
-            "horizon": horizon}  # fmt: skip
+    return {
+        "technique": technique,
+        "model": model,
+        "mode": plan.mode,
+        "seed": plan.seed,
+        "episode": index,
+        "horizon": horizon,
+    }
 
 
-def evaluate_episode(run: Run, technique: str, plan: FreewayPlan, index: int, search: ChickenSearch,
-                     model: ForwardModel | None = None) -> dict:  # fmt: skip
-    """Episode `index` of `plan` played by `technique` (with `model`, when learned: the weights the run's manifest
-    records) and appended to `run` — or the run's row of it, if it holds one played with the same weights."""
-    case = case_of(technique, plan, index, search.horizon)
-    provenance = run.expected(case)
-    found = run.find(case, provenance)
-    if found is not None:
-        return found
-    played = play_episode(technique, plan.episode_list()[index], search, plan.seed * 1000 + index, model)
-    row = {**case, "noop_start": played.noop_start, "score": played.score, "knocks": played.knocks,
-           "steps": played.steps, "decision_ms": played.decision_ms, "actions": played.actions,
-           **{k: v for k, v in provenance.items() if v is not None}, "code_version": code_version()}  # fmt: skip
-    run.append(row)
-    return row
+def evaluate_episodes(
+    run: Run,
+    technique: str,
+    plan: FreewayPlan,
+    indices: Sequence[int],
+    search: ChickenSearch,
+    model: ForwardModel | None = None,
+) -> list[dict]:
+    """Episodes `indices` of `plan` played together by `technique` (`Lockstep`; with `model`, when learned: the
+    weights the run's manifest records), each appended to `run` as it ends — or the run's row of it, if it holds one
+    played with the same weights. The rows in the order of `indices`."""
+    sticky = run.manifest()["settings"]["repeat_action_probability"]
+    if plan.sticky != sticky:
+        raise ValueError(
+            f"run {run.name!r} plays sticky actions of probability {sticky:g}, not the plan's {plan.sticky:g}"
+        )
+    cases = {i: case_of(technique, plan, i, search.horizon) for i in indices}
+    provenance = run.expected(next(iter(cases.values()))) if cases else {}
+    rows = {i: run.find(case, provenance) for i, case in cases.items()}
+    missing = [i for i, row in rows.items() if row is None]
+    if not missing:
+        return [rows[i] for i in indices]
+    episodes = plan.episode_list()
+    seeds = [episode_seed(plan.seed, i) for i in missing]
+    for j, played in play_episodes(technique, [episodes[i] for i in missing], search, seeds, model):
+        rows[missing[j]] = row = {
+            **cases[missing[j]],
+            "noop_start": played.noop_start,
+            "score": played.score,
+            "knocks": played.knocks,
+            "steps": played.steps,
+            "decision_ms": played.decision_ms,
+            "actions": played.actions,
+            **{k: v for k, v in provenance.items() if v is not None},
+            "code_version": code_version(),
+        }
+        run.append(row)
+    return [rows[i] for i in indices]
 
 
 def read_run(results: str | os.PathLike, run: str) -> list[dict]:
@@ -213,17 +346,36 @@ def summarise(rows: list[dict]) -> list[dict]:
     for (mode, technique, horizon), group in sorted(groups.items(), key=lambda g: (g[0][0], order[g[0][1]], g[0][2])):
         scores = np.array([r["score"] for r in group])
         ms = [r["decision_ms"] for r in group if r["decision_ms"] is not None]
-        summary.append({"mode": mode, "technique": technique, "horizon": horizon, "episodes": len(group),
-                        "score": round(float(scores.mean()), 2), "std": round(float(scores.std()), 2),
-                        "knocks": round(float(np.mean([r["knocks"] for r in group])), 2),
-                        "decision_ms": round(float(np.median(ms)), 3) if ms else None})  # fmt: skip
+        summary.append(
+            {
+                "mode": mode,
+                "technique": technique,
+                "horizon": horizon,
+                "episodes": len(group),
+                "score": round(float(scores.mean()), 2),
+                "std": round(float(scores.std()), 2),
+                "knocks": round(float(np.mean([r["knocks"] for r in group])), 2),
+                "decision_ms": round(float(np.median(ms)), 3) if ms else None,
+            }
+        )
     return summary
 
 
 #: The public scoreboard (Atari 100k, Freeway, mean score as published): agents that learn everything from 100 k
 #: interactions, where dynplan's knows the chicken's rule and learns only the world from recorded episodes.
-SCOREBOARD = {"random": 0.0, "human": 29.6, "SimPLe": 16.7, "TWM": 24.3, "IRIS": 31.1, "DreamerV3": 0.0,
-              "STORM": 33.5, "DIAMOND": 33.3, "MuZero": 21.8, "EfficientZero": 21.8, "BBF": 25.5}  # fmt: skip
+SCOREBOARD = {
+    "random": 0.0,
+    "human": 29.6,
+    "SimPLe": 16.7,
+    "TWM": 24.3,
+    "IRIS": 31.1,
+    "DreamerV3": 0.0,
+    "STORM": 33.5,
+    "DIAMOND": 33.3,
+    "MuZero": 21.8,
+    "EfficientZero": 21.8,
+    "BBF": 25.5,
+}
 #: The command that plays the committed Freeway evaluation.
 EVALUATION_COMMAND = "python -m flows.evaluate --world freeway --modes 0 4 --episodes 20 --seed 0 --horizon 8"
 
@@ -232,7 +384,11 @@ def results_section(results: str | os.PathLike, run: str = "evaluation") -> list
     """The results page's Freeway section from the run of the store at `results` (none if the run is not there)."""
     if not Run(results, run, RUNS).exists():
         return []
-    return results_table(read_run(results, run), EVALUATION_COMMAND, "two or three processes on 2 cores")
+    lines = results_table(read_run(results, run), EVALUATION_COMMAND, "two or three processes on 2 cores")
+    sticky = Run(results, STICKY_RUN, RUNS)
+    if sticky.exists():
+        lines += sticky_table(sticky.current(), sticky.manifest()["settings"]["repeat_action_probability"])
+    return lines
 
 
 #: What a Freeway agent is given, and so what its score measures: the section's first paragraph.
@@ -251,31 +407,69 @@ def results_table(results: list[dict], command: str, played: str) -> list[str]:
     agent against the oracle and the extrapolator, and the scoreboard beside those; `command` is the one that played
     the episodes, `played` how (the times' conditions)."""
     rows = summarise(results)
+    lines = [
+        "## Atari Freeway",
+        "",
+        GIVEN,
+        "",
+        f"`{command}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
+        "starts drawn from the seed), and knocks an episode; a decision's median ms, the prediction's and the "
+        f"search's ({played}; `python -m dynplan.bench freeway` times one idle core).",
+        "",
+        *_table(rows),
+    ]
+    return [*lines, "", *_against_the_oracle(rows), *_beside_the_scoreboard(rows)]
+
+
+def _table(rows: list[dict]) -> list[str]:
+    """A row per technique and horizon, a column per mode: mean score ± std and knocks; the decisions' ms."""
     modes = sorted({row["mode"] for row in rows})
     cells: dict[tuple[str, int], dict[int, dict]] = {}
     for row in rows:
         cells.setdefault((row["technique"], row["horizon"]), {})[row["mode"]] = row
     header = " | ".join(f"mode {m}" for m in modes)
-    lines = ["## Atari Freeway", "", GIVEN, "",
-             f"`{command}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
-             "starts drawn from the seed), and knocks an episode; a decision's median ms, the prediction's and the "
-             f"search's ({played}; `python -m dynplan.bench freeway` times one idle core).", "",
-             f"| technique | {header} | ms |", f"|{' --- |' * (len(modes) + 2)}"]  # fmt: skip
+    lines = [f"| technique | {header} | ms |", f"|{' --- |' * (len(modes) + 2)}"]
     for (technique, horizon), by_mode in cells.items():
         shown = [f"{r['score']:g} ± {r['std']:g}, {r['knocks']:g}" if (r := by_mode.get(m)) else "" for m in modes]
         ms = " / ".join(f"{r['decision_ms']:g}" for r in by_mode.values() if r["decision_ms"] is not None)
         name = f"{technique} k = {horizon}" if technique in PLANNERS else technique
         lines.append(f"| {name} | {' | '.join(shown)} | {ms} |")
-    return [*lines, "", *_against_the_oracle(rows), *_beside_the_scoreboard(rows)]
+    return lines
+
+
+#: The command that plays the run of the same episodes with the game's sticky actions.
+STICKY_COMMAND = (
+    "python -m flows.evaluate --world freeway --run sticky --techniques oracle learned extrapolate zero "
+    "--modes 0 4 --episodes 20 --seed 0 --horizon 8"
+)
+
+
+def sticky_table(results: list[dict], sticky: float) -> list[str]:
+    """The same episodes played with sticky actions of probability `sticky` (the run `sticky`): what the agents
+    score when the game does not always do what they chose."""
+    return [
+        "### With sticky actions",
+        "",
+        f"`{STICKY_COMMAND}`: the same NOOP starts, with the game repeating its last action at each emulator "
+        f"frame with probability {sticky:g} (ALE's sticky actions, Machado et al.'s protocol; each episode's repeats "
+        "drawn from its own seed, so `--check` replays them). The planner does not model the repeats: it reads the "
+        "chicken from RAM at each step and plans again.",
+        "",
+        *_table(summarise(results)),
+        "",
+    ]
 
 
 def _beside_the_scoreboard(rows: list[dict]) -> list[str]:
     """The public scoreboard, beside the differences it does not measure."""
     board = " · ".join(f"{name} {score:g}" for name, score in SCOREBOARD.items())
-    return [f"Beside those differences only, the Atari 100k scoreboard (mean scores as published): {board}. Those "
-            "agents learn everything — the chicken's rule, the world, what to do — from 100 k interactions; this one "
-            "is given the rule and the chicken's state and learns the lanes alone, so the scoreboard places the "
-            "game's scores, not the agents.", ""]  # fmt: skip
+    return [
+        f"Beside those differences only, the Atari 100k scoreboard (mean scores as published): {board}. Those "
+        "agents learn everything — the chicken's rule, the world, what to do — from 100 k interactions; this one "
+        "is given the rule and the chicken's state and learns the lanes alone, so the scoreboard places the "
+        "game's scores, not the agents.",
+        "",
+    ]
 
 
 #: The learned agent's targets: at least this mean on mode 0, and at most these points below the oracle on mode 0
@@ -306,6 +500,9 @@ def _against_the_oracle(rows: list[dict]) -> list[str]:
         )
     if not parts:
         return []
-    return ["Learned against the oracle: " + "; ".join(parts) + ". On mode 0 the oracle at k = 8 scores 34 from NOOP "
-            "starts up to 16 and 33 from later ones (fewer steps), so its mean over uniform starts is 33.55: a mean "
-            "of 33.5 is the oracle's own, which a learned agent can at best tie.", ""]  # fmt: skip
+    return [
+        "Learned against the oracle: " + "; ".join(parts) + ". On mode 0 the oracle at k = 8 scores 34 from NOOP "
+        "starts up to 16 and 33 from later ones (fewer steps), so its mean over uniform starts is 33.55: a mean "
+        "of 33.5 is the oracle's own, which a learned agent can at best tie.",
+        "",
+    ]

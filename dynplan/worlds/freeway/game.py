@@ -80,12 +80,35 @@ _NO_CAR = np.zeros(256, bool)
 _NO_CAR[list(ROAD_VALUES)] = True
 
 
+#: The emulator's random seeds: 0 … 2³¹ − 2 (a 32-bit signed integer; −1 asks for a seed from the clock).
+EMULATOR_SEEDS = 2**31 - 1
+
+
 class FreewayEpisode(Config):
-    """Which Freeway episode: the game mode (traffic; modes 4–7 change speeds during the episode) and the NOOP steps
-    played before the agent starts (the traffic's phase)."""
+    """Which Freeway episode: the game mode (traffic; modes 4–7 change speeds during the episode), the NOOP steps
+    played before the agent starts (the traffic's phase) and the game's sticky actions (ALE's: at each emulator
+    frame, with probability `sticky`, the action before is played again, drawn from `emulator_seed`)."""
 
     mode: int = Field(0, ge=0, le=7, description="the game mode (its traffic)")
     noop_start: int = Field(0, ge=0, le=30, description="NOOP steps before the agent's first")
+    sticky: float = Field(
+        0.0, ge=0.0, le=1.0, description="probability that the game repeats its last action at a frame (0: none)"
+    )
+    emulator_seed: int = Field(
+        0, ge=0, le=EMULATOR_SEEDS - 1, description="the game's random seed (which frames repeat)"
+    )
+
+
+def episode_seed(seed: int, index: int) -> int:
+    """Episode `index`'s own seed in an evaluation drawn from `seed`: its random actions' (`emulator_seed`: its
+    sticky frames')."""
+    return seed * 1000 + index
+
+
+def emulator_seed(seed: int, index: int) -> int:
+    """The emulator's random seed of episode `index` of an evaluation drawn from `seed` (which frames repeat with
+    sticky actions): the episode's seed, within the emulator's range."""
+    return episode_seed(seed, index) % EMULATOR_SEEDS
 
 
 @dataclass(frozen=True)
@@ -118,7 +141,8 @@ class FreewayGame:
 
     def __init__(self, episode: FreewayEpisode | None = None) -> None:
         self.episode = episode = episode or FreewayEpisode()
-        self.real, self.shadow = emulator(episode.mode), emulator(episode.mode)
+        self.real = emulator(episode.mode, episode.sticky, episode.emulator_seed)
+        self.shadow = emulator(episode.mode)  # plays NOOP: nothing to repeat but NOOP
         self._actions = self.real.getMinimalActionSet()
         for _ in range(episode.noop_start):
             self._advance(0)
@@ -307,13 +331,14 @@ def extrapolated(observed: np.ndarray, k: int) -> np.ndarray:
     return frames
 
 
-def emulator(mode: int):
-    """An ALE emulator of Freeway in `mode`, deterministic (no sticky actions), one emulator frame per act."""
+def emulator(mode: int, sticky: float = 0.0, seed: int = 0):
+    """An ALE emulator of Freeway in `mode`, one emulator frame per act: deterministic, or with probability
+    `sticky` of repeating the action before at each frame, drawn from `seed`."""
     ale_py = require("ale_py", "atari", "Atari Freeway")
     ale_py.ALEInterface.setLoggerMode(ale_py.LoggerMode.Error)  # before the first emulator: no banner
     ale = ale_py.ALEInterface()
-    ale.setInt("random_seed", 0)
-    ale.setFloat("repeat_action_probability", 0.0)
+    ale.setInt("random_seed", seed)
+    ale.setFloat("repeat_action_probability", sticky)
     ale.setInt("frame_skip", 1)
     ale.loadROM(ale_py.roms.get_rom_path("freeway"))
     ale.setMode(mode)

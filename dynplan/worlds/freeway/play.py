@@ -43,8 +43,9 @@ class FreewayPlay:
     """The state of one interactive episode: the real game (through `FreewayGame`), the turns played, and the
     planner of `technique` (one of `freeway.PLANNERS`; `model` for learned) at horizon `horizon`."""
 
-    def __init__(self, episode: FreewayEpisode, technique: str = "oracle", horizon: int = 8,
-                 model: ForwardModel | None = None) -> None:  # fmt: skip
+    def __init__(
+        self, episode: FreewayEpisode, technique: str = "oracle", horizon: int = 8, model: ForwardModel | None = None
+    ) -> None:
         self.caption, self.keys = "dynplan play: Freeway", ACTION_KEYS
         if technique not in PLANNERS:
             raise ValueError(f"technique {technique!r} does not plan; choose one of {', '.join(PLANNERS)}")
@@ -115,8 +116,9 @@ class FreewayPlay:
     def cycle_horizon(self) -> int:
         """The next horizon of `HORIZONS`."""
         horizon = self.search.horizon
-        self.search = ChickenSearch(horizon=HORIZONS[(HORIZONS.index(horizon) + 1) % len(HORIZONS)]
-                                    if horizon in HORIZONS else HORIZONS[0])  # fmt: skip
+        self.search = ChickenSearch(
+            horizon=HORIZONS[(HORIZONS.index(horizon) + 1) % len(HORIZONS)] if horizon in HORIZONS else HORIZONS[0]
+        )
         return self.search.horizon
 
     def record(self, path: str | os.PathLike) -> Path:

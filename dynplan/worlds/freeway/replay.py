@@ -36,11 +36,17 @@ def replayable(log: str | os.PathLike) -> EpisodeLog:
     """`log`, read and checked: a whole Freeway mode's recording, as `flows.collect` writes it; else a LogError."""
     recorded = read_recorded_log(log)
     if recorded.entry.name != "freeway" or recorded.metadata.get("kind") != "world":
-        raise LogError(log, f"is a {recorded.entry.name} log of kind {recorded.metadata.get('kind')!r}; a Freeway "
-                            "replay plays a Freeway mode's recording (flows.collect --world freeway)")  # fmt: skip
+        raise LogError(
+            log,
+            f"is a {recorded.entry.name} log of kind {recorded.metadata.get('kind')!r}; a Freeway "
+            "replay plays a Freeway mode's recording (flows.collect --world freeway)",
+        )
     if recorded.n_frames < recorded.config.max_steps:
-        raise LogError(log, f"holds {recorded.n_frames} frames of the game's {recorded.config.max_steps}; record the "
-                            "whole mode (flows.collect --world freeway without a frame limit)")  # fmt: skip
+        raise LogError(
+            log,
+            f"holds {recorded.n_frames} frames of the game's {recorded.config.max_steps}; record the "
+            "whole mode (flows.collect --world freeway without a frame limit)",
+        )
     return recorded
 
 
@@ -61,13 +67,18 @@ def track(turns: list[Turn], noop_start: int) -> AgentTrack:
     chickens = [turns[0].chicken] + [turn.step.chicken for turn in turns]
     outcomes = ("running",) * (len(turns) - 1) + ("timeout" if turns[-1].step.done else "running",)
     positions = np.stack([chicken_position(c) for c in chickens])
-    return AgentTrack(t=noop_start + np.arange(len(chickens)), position=positions,
-                      action=np.array([turn.action for turn in turns]),
-                      reward=np.array([turn.step.reward for turn in turns]), outcome=outcomes)  # fmt: skip
+    return AgentTrack(
+        t=noop_start + np.arange(len(chickens)),
+        position=positions,
+        action=np.array([turn.action for turn in turns]),
+        reward=np.array([turn.step.reward for turn in turns]),
+        outcome=outcomes,
+    )
 
 
-def replay_gif(path: str | os.PathLike, turns: list[Turn], frames: np.ndarray, noop_start: int,
-               steps: int = GIF_STEPS) -> Path:  # fmt: skip
+def replay_gif(
+    path: str | os.PathLike, turns: list[Turn], frames: np.ndarray, noop_start: int, steps: int = GIF_STEPS
+) -> Path:
     """A GIF of the first `steps` turns (a planner's) of an episode of the recording `frames` starting at
     `noop_start`: the lanes now with the chicken | the true lanes k steps on | those the planner searched | error."""
     panels = []
@@ -82,9 +93,15 @@ def replay_gif(path: str | os.PathLike, turns: list[Turn], frames: np.ndarray, n
     return write_gif(path, panels, fps=15, scale=1)
 
 
-def replay_freeway(log: str | os.PathLike, technique: str, noop_start: int, search: ChickenSearch,
-                   out: str | os.PathLike, model: ForwardModel | None = None,
-                   gif: str | os.PathLike | None = None) -> FreewayResult:  # fmt: skip
+def replay_freeway(
+    log: str | os.PathLike,
+    technique: str,
+    noop_start: int,
+    search: ChickenSearch,
+    out: str | os.PathLike,
+    model: ForwardModel | None = None,
+    gif: str | os.PathLike | None = None,
+) -> FreewayResult:
     """Play the episode of `log`'s mode with NOOP start `noop_start` by `technique` (with `model` when learned) and
     write its replay to `out` (and, with `gif`, its first steps' GIF there)."""
     recorded = replayable(log)

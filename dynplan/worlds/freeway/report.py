@@ -33,8 +33,13 @@ def draw_gif(out: Path, model_dir: Path, plan: FreewayEvalPlan) -> str:
     out.mkdir(parents=True, exist_ok=True)
     mode, horizon = plan.modes[0], plan.horizon
     episode = plan.plans()[0].episode_list()[0]
-    identity = {"checkpoints": [sha256_file(model_dir / f"{s}.pt") for s in ("vqvae", "pixelcnn")],
-                "mode": mode, "noop_start": episode.noop_start, "k": horizon, "steps": GIF_STEPS}  # fmt: skip
+    identity = {
+        "checkpoints": [sha256_file(model_dir / f"{s}.pt") for s in ("vqvae", "pixelcnn")],
+        "mode": mode,
+        "noop_start": episode.noop_start,
+        "k": horizon,
+        "steps": GIF_STEPS,
+    }
     manifest = out / "figures.json"
     if manifest.exists() and json.loads(manifest.read_text()).get("identity") == identity and (out / GIF_NAME).exists():
         return GIF_NAME

@@ -8,7 +8,8 @@ row hold, and the check that replays a row's recorded actions in a fresh emulato
                                       start, score, knocks, steps, median decision ms, the actions and the code
 
 The actions are one digit a step (0 NOOP, 1 UP, 2 DOWN): the game is deterministic, so a row's score, knocks and
-steps follow from its mode, NOOP start and actions alone (`replay_check`), whatever played them.
+steps follow from its mode, NOOP start and actions alone (`replay_check`), whatever played them — with sticky
+actions (a run's settings), from those and the episode's seed, which draws the frames that repeat.
 """
 
 from __future__ import annotations
@@ -26,12 +27,21 @@ from dynplan.models.checkpoint import weights_sha256
 from dynplan.models.world_model import world_model_paths
 from dynplan.world_parts import RunKind
 from dynplan.worlds.freeway import WORLD
-from dynplan.worlds.freeway.game import GAME_STEPS, MODES, FreewayEpisode, FreewayGame
+from dynplan.worlds.freeway.game import GAME_STEPS, MODES, FreewayEpisode, FreewayGame, emulator_seed
 
 #: The techniques a row may name (`dynplan.worlds.freeway.evaluation.TECHNIQUES`).
 TECHNIQUE_NAMES = ("oracle", "learned", "extrapolate", "zero", "up", "random")
-#: The emulator every run so far plays: deterministic, frameskip 4.
+#: The emulator of a run without sticky actions: deterministic, frameskip 4 (`settings` for another).
 SETTINGS = {"repeat_action_probability": 0.0, "frameskip": 4}
+#: The runs the results page shows, and the sticky actions each plays with (0.25: Machado et al.'s protocol).
+STICKY_RUN = "sticky"
+SHOWN_RUNS = {"evaluation": 0.0, STICKY_RUN: 0.25}
+
+
+def settings(sticky: float) -> dict:
+    """A run's emulator settings: frameskip 4, and sticky actions of probability `sticky`."""
+    return {**SETTINGS, "repeat_action_probability": sticky}
+
 
 Text = Annotated[str, Field(min_length=1)]
 Count = Annotated[int, Field(ge=0)]
@@ -120,10 +130,14 @@ def weights_entry(model: str, model_dir: str | os.PathLike | None) -> dict:
     return {"weights_sha256": "+".join(weights_sha256(p) for p in paths), "weights": shown}
 
 
-def replayed(row: Mapping) -> tuple[float, int, int, bool]:
-    """The score, knocks and steps of `row`'s actions played from its mode's NOOP start in a fresh emulator, and
-    whether the game ended on the last of them."""
-    game = FreewayGame(FreewayEpisode(mode=row["mode"], noop_start=row["noop_start"]))
+def replayed(row: Mapping, run_settings: Mapping = SETTINGS) -> tuple[float, int, int, bool]:
+    """The score, knocks and steps of `row`'s actions played from its mode's NOOP start in a fresh emulator with its
+    run's settings (sticky actions drawn from the episode's seed), and whether the game ended on the last."""
+    sticky = run_settings["repeat_action_probability"]
+    seed = emulator_seed(row["seed"], row["episode"]) if sticky else 0
+    game = FreewayGame(
+        FreewayEpisode(mode=row["mode"], noop_start=row["noop_start"], sticky=sticky, emulator_seed=seed)
+    )
     score, knocks, steps, done = 0.0, 0, 0, False
     for digit in row["actions"]:
         before = game.chicken
@@ -135,10 +149,10 @@ def replayed(row: Mapping) -> tuple[float, int, int, bool]:
     return score, int(knocks), steps, done and steps == len(row["actions"])
 
 
-def replay_check(row: Mapping) -> str | None:
-    """None when `row`'s actions, played again, give its score, knocks and steps and end the game on the last;
-    else what differs."""
-    score, knocks, steps, ended = replayed(row)
+def replay_check(row: Mapping, run_settings: Mapping = SETTINGS) -> str | None:
+    """None when `row`'s actions, played again with its run's settings, give its score, knocks and steps and end
+    the game on the last; else what differs."""
+    score, knocks, steps, ended = replayed(row, run_settings)
     if (score, knocks, steps) == (row["score"], row["knocks"], row["steps"]) and ended:
         return None
     end = "" if ended else ", the game not ending on the last"
