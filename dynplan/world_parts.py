@@ -5,7 +5,8 @@ presets and evaluation plan, its pipeline stages, its benchmarks and what its ru
 The flows are the same for every world: `flows.evaluate --world W` parses the options W's `EvaluateCommand` adds,
 makes its request, plays its jobs as Prefect tasks and prints its summary; `flows.replay` and `flows.play` do the
 same with `ReplayCommand` and `PlayCommand`, and `collect-train-eval` evaluates and reports through
-`PipelineStages`. None of these imports Prefect: a world's package is library code. A part that is None is played
+`PipelineStages`. None of these imports Prefect: a world's package is library code. `flows.replay` takes this path
+for every world, the road's (`dynplan.worlds.road.commands`) too; an evaluate or play part that is None is played
 by the flows' own road commands (the default world's).
 """
 

@@ -1,9 +1,9 @@
 """The commands of a world that brings its own (`dynplan.world_parts`): one path for every such world.
 
-`flows.evaluate`, `flows.replay` and `flows.play` with `--world W` hand their arguments here when W's `WorldParts`
-has the command: its options are added to a parser of the command's own, its request is made and checked before any
-flow machinery starts (a bad value is one line and exit status 2), and the work runs as a Prefect flow (evaluate:
-one task a job; replay: one flow run) or a pygame window (play).
+`flows.replay`, and `flows.evaluate` and `flows.play` with `--world W`, hand their arguments here when the world's
+`WorldParts` has the command: its options are added to a parser of the command's own, its request is made and
+checked before any flow machinery starts (a bad value is one line and exit status 2), and the work runs as a
+Prefect flow (evaluate: one task a job; replay: one flow run) or a pygame window (play).
 """
 
 from __future__ import annotations
@@ -35,7 +35,8 @@ Command = EvaluateCommand | ReplayCommand | PlayCommand
 
 def own_command(argv: Sequence[str], command: Callable[[WorldParts], Command | None]) -> tuple[str, Any] | None:
     """(world, its half of a command: `command` of its parts) when `argv` names a world other than the default whose
-    parts have one; else None (the flows' own command parses `argv`, and names an unknown world)."""
+    parts have one; else None (the flows' own road command parses `argv`, and names an unknown world): the
+    commands whose road half is still the flow's own (`flows.evaluate`, `flows.play`; `world_command` for the rest)."""
     name = named_world(list(argv))
     if name == DEFAULT_WORLD or name not in world_names():
         return None
@@ -43,15 +44,37 @@ def own_command(argv: Sequence[str], command: Callable[[WorldParts], Command | N
     return None if own is None else (name, own)
 
 
+def world_command(prog: str, argv: Sequence[str], command: Callable[[WorldParts], Command | None]) -> tuple[str, Any]:
+    """(world, its half of a command: `command` of its parts) for the world `argv` names (the default where it
+    names none); a world that is not one of dynplan's, or has no such command, exits with one line."""
+    name = named_world(list(argv))
+    if name not in world_names():
+        parser = CommandParser(prog=prog)
+        parser.add_argument("--world", choices=world_names())
+        parser.parse_known_args(list(argv))  # exits: an invalid choice, naming the worlds
+    own = command(world(name).load())
+    if own is None:
+        CommandParser(prog=prog).error(f"--world {name}: the {name} world has no `{prog}`")
+    return name, own
+
+
 def parser_for(prog: str, name: str, own: Command) -> CommandParser:
     """A command's parser for world `name`: its half's docstring, `--world`, then the options its half adds."""
     description = inspect.cleandoc(type(own).__doc__ or "")
-    parser = CommandParser(
-        prog=f"{prog} --world {name}", description=description, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--world", choices=[name], default=name, help=name)
+    shown = prog if name == DEFAULT_WORLD else f"{prog} --world {name}"
+    parser = CommandParser(prog=shown, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    help = f"the world (default {DEFAULT_WORLD}; `--world W --help` lists another world's options)"
+    parser.add_argument("--world", choices=world_names(), default=name, help=help)
     own.add_arguments(parser)
     return parser
+
+
+def parsed(parser: argparse.ArgumentParser, name: str, argv: Sequence[str]) -> argparse.Namespace:
+    """`argv` parsed as world `name`'s command (an abbreviated `--world` of another world exits, naming it)."""
+    args = parser.parse_args(list(argv))
+    if args.world != name:
+        parser.error(f"--world {args.world}: give it as --world {args.world} (in full) for its own options")
+    return args
 
 
 def _request(parser: argparse.ArgumentParser, own: EvaluateCommand | ReplayCommand, args: argparse.Namespace) -> Any:
@@ -93,7 +116,7 @@ def evaluate_main(name: str, own: EvaluateCommand, argv: Sequence[str]) -> list[
     check = "play nothing: replay each row of the run in a fresh game against its outcome (exit 1 naming misfits)"
     parser.add_argument("--check", action="store_true", help=check)
     add_debug_option(parser)
-    args = parser.parse_args(list(argv))
+    args = parsed(parser, name, argv)
     request = _request(parser, own, args)
     if args.check:
         return _check(own, request)
@@ -133,7 +156,7 @@ def replay_main(name: str, own: ReplayCommand, argv: Sequence[str]) -> dict:
     parser.add_argument("log", type=PathArgument(PathKind.LOG), help=f"a {name} log (.mcap) from flows.collect")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     add_debug_option(parser)
-    args = parser.parse_args(list(argv))
+    args = parsed(parser, name, argv)
     request = _request(parser, own, args)
     result = replay_world(world_name=name, request=request.model_dump(mode="json"))
     if args.json:
@@ -171,7 +194,7 @@ def play_main(name: str, own: PlayCommand, argv: Sequence[str]) -> PlayState:
     parser.add_argument(
         "--script", default=None, help="key names separated by commas, one per frame, then quit (headless runs)"
     )
-    args = parser.parse_args(list(argv))
+    args = parsed(parser, name, argv)
     script = checked_window_options(parser, args)
     try:
         state = own.state(args)
