@@ -52,7 +52,7 @@ from dynplan.play import HORIZONS, PlayState
 from dynplan.render import error_image
 from dynplan.world import DEFAULT_WORLD, world_names
 from dynplan.world_parts import PlayState as WorldPlayState
-from flows.window import PanelWindow, checked_window_options
+from flows.window import PanelWindow, add_window_options, checked_window_options
 from flows.worlds import own_command, play_main
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
@@ -264,10 +264,7 @@ def _parser() -> CommandParser:
 
 def _add_window_options(parser: argparse.ArgumentParser) -> None:
     """The window, the live view and the headless script."""
-    parser.add_argument("--scale", type=int, default=8, choices=range(1, 17), metavar="1..16", help="pixels per cell")
-    parser.add_argument(
-        "--fps", type=Bounded(float, 0.01, 1000.0), default=8.0, help="frames per second while the planner plays"
-    )
+    add_window_options(parser, 8, 8.0, "cell")
     parser.add_argument(
         "--live",
         action="store_true",
@@ -275,15 +272,6 @@ def _add_window_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--live-port", type=Bounded(int, 0, 65535), default=DEFAULT_PORT, help="the live view's port (0: any free one)"
-    )
-    parser.add_argument(
-        "--screenshot",
-        type=PathArgument(PathKind.OUTPUT_FILE),
-        default=None,
-        help="save the window's last picture to this PNG at the end",
-    )
-    parser.add_argument(
-        "--script", default=None, help="key names separated by commas, one per frame, then quit (headless runs)"
     )
 
 

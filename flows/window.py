@@ -10,7 +10,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from dynplan.paths import check_output
+from dynplan.cli import Bounded
+from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.render import upscale
 
 INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame)"
@@ -54,6 +55,26 @@ class PanelWindow:
             self.blit(image, column, title)
         self.text(lines)
         self.pygame.display.flip()
+
+
+def add_window_options(parser: argparse.ArgumentParser, scale: int, fps: float, pixel: str) -> None:
+    """The play window's options: its scale (default `scale` screen pixels per `pixel`), the planner's frame rate
+    (default `fps`), a last picture and a headless script of keys."""
+    parser.add_argument(
+        "--scale", type=int, default=scale, choices=range(1, 17), metavar="1..16", help=f"pixels per {pixel}"
+    )
+    parser.add_argument(
+        "--fps", type=Bounded(float, 0.01, 1000.0), default=fps, help="frames per second while the planner plays"
+    )
+    parser.add_argument(
+        "--screenshot",
+        type=PathArgument(PathKind.OUTPUT_FILE),
+        default=None,
+        help="save the window's last picture to this PNG at the end",
+    )
+    parser.add_argument(
+        "--script", default=None, help="key names separated by commas, one per frame, then quit (headless runs)"
+    )
 
 
 def checked_window_options(

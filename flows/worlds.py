@@ -27,7 +27,7 @@ from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world, world_names
 from dynplan.world_parts import EvaluateCommand, PlayCommand, PlayState, ReplayCommand, WorldParts
 from flows.runners import task_runner
-from flows.window import PanelWindow, checked_window_options
+from flows.window import PanelWindow, add_window_options, checked_window_options
 
 #: A world's half of one of the commands.
 Command = EvaluateCommand | ReplayCommand | PlayCommand
@@ -174,26 +174,7 @@ def play_main(name: str, own: PlayCommand, argv: Sequence[str]) -> PlayState:
         default=None,
         help="write what was played to this replay log (.mcap) at the end",
     )
-    parser.add_argument(
-        "--scale",
-        type=int,
-        default=own.scale,
-        choices=range(1, 17),
-        metavar="1..16",
-        help=f"pixels per pixel of the world (default {own.scale})",
-    )
-    parser.add_argument(
-        "--fps", type=Bounded(float, 0.01, 1000.0), default=15.0, help="frames per second while the planner plays"
-    )
-    parser.add_argument(
-        "--screenshot",
-        type=PathArgument(PathKind.OUTPUT_FILE),
-        default=None,
-        help="save the window's last picture to this PNG at the end",
-    )
-    parser.add_argument(
-        "--script", default=None, help="key names separated by commas, one per frame, then quit (headless runs)"
-    )
+    add_window_options(parser, own.scale, 15.0, f"pixel of the world (default {own.scale})")
     args = parsed(parser, name, argv)
     script = checked_window_options(parser, args)
     try:
