@@ -212,3 +212,28 @@ def test_the_extrapolator_moves_each_lane_on_at_its_recent_speed():
     np.testing.assert_array_equal(
         searched_frames([truth[0]], ChickenSearch(horizon=2), "extrapolate"), truth[[0, 0, 0]]
     )
+
+
+def test_episodes_in_lockstep_decide_as_each_alone():
+    """A lockstep batch makes one prediction for all its episodes: each decides as it does played alone (the
+    committed world model; NOOP starts 0, 3 and 7), and an episode's decision ms include its share of the batch's."""
+    from dynplan.models.chain import forget_greedy
+    from dynplan.worlds.freeway.evaluation import Lockstep, world_model_for
+
+    model, search, steps = world_model_for("learned"), ChickenSearch(horizon=4), 12
+    episodes = [FreewayEpisode(mode=0, noop_start=n) for n in (0, 3, 7)]
+
+    def actions(batch: list[FreewayEpisode]) -> list[list[int]]:
+        forget_greedy()
+        lockstep, out = Lockstep("learned", batch, search, list(range(len(batch))), model), [[] for _ in batch]
+        for _ in range(steps):
+            for i, turn in lockstep.advance():
+                out[i].append(turn.action)
+                assert turn.decision_ms > 0 and turn.frames.shape == (5, 154, 152)
+        return out
+
+    together = actions(episodes)
+    assert together == [actions([episode])[0] for episode in episodes]
+    assert all(len(a) == steps for a in together)
+    with pytest.raises(ValueError, match="3 episodes and 2 seeds"):
+        Lockstep("learned", episodes, search, [0, 1], model)

@@ -413,8 +413,9 @@ def results_table(results: list[dict], command: str, played: str) -> list[str]:
         GIVEN,
         "",
         f"`{command}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
-        "starts drawn from the seed), and knocks an episode; a decision's median ms, the prediction's and the "
-        f"search's ({played}; `python -m dynplan.bench freeway` times one idle core).",
+        "starts drawn from the seed), and knocks an episode; a decision's median ms, the prediction's (in a "
+        "lockstep batch, the episode's share of the batch's) and the search's "
+        f"({played}; `python -m dynplan.bench freeway` times one idle core).",
         "",
         *_table(rows),
     ]
