@@ -13,7 +13,8 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.env.road_env import RoadEnv
 from dynplan.logs.format import AgentTrack
-from dynplan.planning.forward import ForwardModel, Prediction, predict_together
+from dynplan.planning.forward import ForwardModel, Prediction
+from dynplan.planning.lockstep import step_together
 from dynplan.planning.mcts import Decision, MCTSPlanner, RandomPlanner
 
 #: Called after each decision with (t, position, prediction, decision) — e.g. to record imagined frames.
@@ -65,6 +66,7 @@ class _Episode:
     planner: MCTSPlanner | RandomPlanner
     model: ForwardModel | None
     horizon: int
+    on_decision: BatchDecisionHook | None = None
     env: RoadEnv = field(init=False)
     first: tuple[int, np.ndarray] = field(init=False)  # (t, position) before the first step
     times: list[float] = field(default_factory=list)
@@ -77,22 +79,26 @@ class _Episode:
         self.planner.reset()
         self.first = (self.env.t, self.env.position.copy())
 
+    def observed(self) -> np.ndarray:
+        """The recorded world's frames up to now."""
+        return self.world.frames[: self.env.t + 1]
+
     def asks(self) -> int:
         """The frames its prediction may hold: the horizon, never past frame T − 1, where the episode times out."""
         return min(self.horizon, self.env.config.max_steps - 1 - self.env.t)
 
-    def step(self, prediction: Prediction | None, share_ms: float, on_decision: BatchDecisionHook | None) -> str:
+    def advance(self, prediction: Prediction | None, share_ms: float) -> bool:
         """Decide against `prediction` (its time: `share_ms` of the batch's prediction plus the search) and step;
-        returns the outcome ("running" until the episode ends)."""
+        whether the episode still runs."""
         env = self.env
         start = time.perf_counter()
         decision = self.planner.act(env.position, env.t, prediction)
         self.times.append(share_ms + (time.perf_counter() - start) * 1e3)
-        if on_decision is not None:
-            on_decision(self.index, env.t, env.position.copy(), prediction, decision)
+        if self.on_decision is not None:
+            self.on_decision(self.index, env.t, env.position.copy(), prediction, decision)
         _, reward, _, _, info = env.step(decision.action)
         self.steps.append((env.t, env.position.copy(), decision.action, reward, info["outcome"]))
-        return info["outcome"]
+        return info["outcome"] == "running"
 
     def result(self) -> EpisodeResult:
         t, positions, actions, rewards, outcomes = zip(*self.steps, strict=True)
@@ -143,25 +149,17 @@ def run_episodes(
     speeds = [agent_speed] * n if np.isscalar(agent_speed) else list(agent_speed)
     horizons = [rollout_steps] * n if np.isscalar(rollout_steps) else list(rollout_steps)
     _check(worlds, planners, models, speeds, horizons)
-    episodes = [_Episode(i, *args) for i, args in enumerate(zip(worlds, planners, models, horizons, strict=True))]
+    each = zip(worlds, planners, models, horizons, strict=True)
+    episodes = [_Episode(i, *args, on_decision=on_decision) for i, args in enumerate(each)]
     for episode, speed in zip(episodes, speeds, strict=True):
         episode.start(speed)
     results: list[EpisodeResult | None] = [None] * n
     live = episodes
     while live:
-        asking = [e for e in live if e.model is not None]
-        predicted, spent = predict_together(
-            [e.model for e in asking], [e.world.frames[: e.env.t + 1] for e in asking], [e.asks() for e in asking]
-        )
-        predictions = {e.index: (p, ms) for e, p, ms in zip(asking, predicted, spent, strict=True)}
-        still = []
-        for e in live:
-            prediction, share = predictions.get(e.index, (None, 0.0))
-            if e.step(prediction, share, on_decision) == "running":
-                still.append(e)
-                continue
+        playing = step_together(live)
+        for e in (e for e, still in zip(live, playing, strict=True) if not still):
             results[e.index] = e.result()
             if on_finish is not None:
                 on_finish(e.index, results[e.index])
-        live = still
+        live = [e for e, still in zip(live, playing, strict=True) if still]
     return results  # type: ignore[return-value]

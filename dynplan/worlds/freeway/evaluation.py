@@ -24,7 +24,8 @@ from pydantic import Field
 from dynplan.config import Config
 from dynplan.evaluation.store import Run, code_version
 from dynplan.models.world_model import load_world_model
-from dynplan.planning.forward import ForwardModel, predict_together
+from dynplan.planning.forward import ForwardModel, Prediction
+from dynplan.planning.lockstep import step_together
 from dynplan.worlds.freeway import WORLD
 from dynplan.worlds.freeway.game import (
     ROAD_VALUES,
@@ -150,10 +151,48 @@ def check_technique(technique: str, model: ForwardModel | None) -> None:
         raise ValueError(f"technique {technique!r} {needs}")
 
 
+class _Game:
+    """One episode of a lockstep batch (`LockstepEpisode`): the real game, what the chicken observed, its random
+    stream and its true future (the oracle's), and the turn it played last."""
+
+    def __init__(self, lockstep: Lockstep, episode: FreewayEpisode, seed: int, future: np.ndarray | None) -> None:
+        self.lockstep, self.game, self.rng, self.future = (
+            lockstep,
+            FreewayGame(episode),
+            np.random.default_rng(seed),
+            future,
+        )
+        self.model = lockstep.model
+        self.frames, self.t, self.turn = [self.game.world_frame()], 0, None
+
+    def observed(self) -> np.ndarray:
+        return np.stack(self.frames[-OBSERVED:])
+
+    def asks(self) -> int:
+        return self.lockstep.search.horizon
+
+    def advance(self, prediction: Prediction | None, share_ms: float) -> bool:
+        """Decide (a planner: on the lanes its technique searches, `prediction`'s for learned) and step."""
+        technique, search, rng = self.lockstep.technique, self.lockstep.search, self.rng
+        start, frames, ms = time.perf_counter(), None, None
+        if technique in PLANNERS:
+            future = None if self.future is None else self.future[self.t :]
+            ahead = None if prediction is None else prediction.frames
+            frames = searched_frames(self.frames, search, technique, future, ahead=ahead)
+            action = plan_chicken(self.game.chicken, frames, search).action
+            ms = share_ms + (time.perf_counter() - start) * 1e3
+        else:
+            action = 1 if technique == "up" else int(rng.integers(0, 3))
+        chicken, step = self.game.chicken, self.game.step(action)
+        self.turn = Turn(chicken, frames, action, ms, step)
+        self.frames, self.t = [*self.frames[-OBSERVED + 1 :], step.frame], self.t + 1
+        return not step.done
+
+
 class Lockstep:
     """`episodes` of the real game played together by `technique`, episode i drawing its random actions from
-    `seeds[i]`: each `advance` makes one decision in every episode still playing, the learned technique's lanes
-    from one batched prediction of all of them (`predict_together`), whose time is shared between them."""
+    `seeds[i]`: each `advance` makes one decision in every episode still playing (`step_together`), the learned
+    technique's lanes from one batched prediction of all of them, whose time is shared between them."""
 
     def __init__(
         self,
@@ -167,40 +206,17 @@ class Lockstep:
         if len(seeds) != len(episodes):
             raise ValueError(f"Lockstep: {len(episodes)} episodes and {len(seeds)} seeds")
         self.technique, self.search, self.model = technique, search, model
-        self.games = [FreewayGame(episode) for episode in episodes]
-        self.rngs = [np.random.default_rng(seed) for seed in seeds]
         recorded = {m: record_mode(m).frames for m in {e.mode for e in episodes}} if technique == "oracle" else {}
-        self.futures = [recorded[e.mode][e.noop_start :] if recorded else None for e in episodes]
-        self.observed = [[game.world_frame()] for game in self.games]
-        self.playing, self.t = list(range(len(episodes))), 0
+        futures = [recorded[e.mode][e.noop_start :] if recorded else None for e in episodes]
+        self.games = [_Game(self, *each) for each in zip(episodes, seeds, futures, strict=True)]
+        self.playing = list(range(len(episodes)))
 
     def advance(self) -> list[tuple[int, Turn]]:
         """One step of every episode still playing: (episode, its turn), in episode order."""
-        playing, turns = self.playing, []
-        ahead, shared = self._predicted(playing)
-        for j, i in enumerate(playing):
-            game, start, frames, ms = self.games[i], time.perf_counter(), None, None
-            if self.technique in PLANNERS:
-                future = None if self.futures[i] is None else self.futures[i][self.t :]
-                frames = searched_frames(self.observed[i], self.search, self.technique, future, ahead=ahead[j])
-                action = plan_chicken(game.chicken, frames, self.search).action
-                ms = shared[j] + (time.perf_counter() - start) * 1e3
-            else:
-                action = 1 if self.technique == "up" else int(self.rngs[i].integers(0, 3))
-            chicken, step = game.chicken, game.step(action)
-            turns.append((i, Turn(chicken, frames, action, ms, step)))
-            self.observed[i] = [*self.observed[i][-OBSERVED + 1 :], step.frame]
-        self.playing, self.t = [i for i, turn in turns if not turn.step.done], self.t + 1
-        return turns
-
-    def _predicted(self, playing: list[int]) -> tuple[list[np.ndarray | None], list[float]]:
-        """The learned lanes ahead of each episode playing, from one batched prediction, and each one's share of its
-        milliseconds (none and 0 for the other techniques)."""
-        if self.technique != "learned":
-            return [None] * len(playing), [0.0] * len(playing)
-        observed = [np.stack(self.observed[i][-OBSERVED:]) for i in playing]
-        predictions, ms = predict_together([self.model] * len(playing), observed, [self.search.horizon] * len(playing))
-        return [p.frames for p in predictions], ms
+        playing = self.playing
+        still = step_together([self.games[i] for i in playing])
+        self.playing = [i for i, plays in zip(playing, still, strict=True) if plays]
+        return [(i, self.games[i].turn) for i in playing]
 
 
 def play_turns(
