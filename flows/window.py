@@ -5,6 +5,8 @@ key names of a headless script, each refused in one line by the command's parser
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 import warnings
 from collections.abc import Sequence
 
@@ -14,6 +16,8 @@ from dynplan.cli import Bounded
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.render import upscale
 
+#: The environment variables that name a display on Linux: X11's and Wayland's, and SDL's own choice of driver.
+DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
 INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame)"
 #: Pixels between panels.
 GAP = 8
@@ -93,6 +97,7 @@ def checked_window_options(
     except ImportError:
         parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
     script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
+    _check_display(parser, script)
     for key in script or ():
         try:
             with warnings.catch_warnings():  # the names are pygame's own before its display is initialised
@@ -101,3 +106,17 @@ def checked_window_options(
         except ValueError:
             parser.error(f"--script: {key!r} is not a key name (e.g. up, left, space, p, escape)")
     return script
+
+
+def _check_display(parser: argparse.ArgumentParser, script: list[str] | None) -> None:
+    """On Linux without a display (none of `DISPLAY_VARIABLES` set), a headless script plays on SDL's dummy video
+    driver; without a script the window has nowhere to open, which is one line, not a wait."""
+    if not sys.platform.startswith("linux") or any(os.environ.get(name) for name in DISPLAY_VARIABLES):
+        return
+    if script is not None:
+        os.environ["SDL_VIDEODRIVER"] = "dummy"
+        return
+    parser.error(
+        "no display to open the window on (DISPLAY and WAYLAND_DISPLAY are unset): run it on a desktop, or headless "
+        "with --script KEYS (e.g. --script p,space,escape) and --screenshot or --record to keep what it played"
+    )

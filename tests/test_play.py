@@ -2,6 +2,8 @@
 gives the world back, the planner plays when asked, and what was played reads back as a replay log. The window
 runs headless (SDL's dummy video driver), fed real key events."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -35,6 +37,21 @@ def test_every_heading_has_a_key_and_a_bad_option_names_itself(capsys):
     with pytest.raises(SystemExit) as exit_:
         main(["--scale", "40"])
     assert exit_.value.code == 2 and "--scale" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("world", [["--no-imagination"], ["--world", "freeway"]])
+def test_without_a_display_the_window_is_one_line_and_a_script_plays_headless(world, monkeypatch, capsys, tmp_path):
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    with pytest.raises(SystemExit) as exit_:
+        main(world)
+    assert exit_.value.code == 2
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "no display to open the window on" in error and "--script KEYS" in error
+    shot = tmp_path / "shot.png"
+    main([*world, "--script", "space,escape", "--screenshot", str(shot)])
+    assert shot.stat().st_size > 0 and os.environ["SDL_VIDEODRIVER"] == "dummy"
 
 
 def test_keys_play_the_oracles_path_to_the_goal():
