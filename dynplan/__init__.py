@@ -12,22 +12,45 @@ Importing dynplan registers the Gymnasium environment `dynplan/Road-v0`.
 
 from dynplan.cli import interrupt_while_loading
 
-interrupt_while_loading()  # before the heavy imports below
+interrupt_while_loading()  # before any heavy import
 
+import importlib
 from typing import Any
 
 import gymnasium
 
-from dynplan.env import RoadConfig, RoadEnv, World, generate_world
-from dynplan.evaluation.agent import AgentSpec
-from dynplan.evaluation.protocol import plan_episode
-from dynplan.evaluation.techniques import TECHNIQUES, register_technique
-from dynplan.models.registry import WORLD_MODELS, register_world_model
-from dynplan.models.world_model import load_world_model
 from dynplan.version import __version__
+
+#: The public names, each imported from its module when first used: `import dynplan.cli` (what a command's `--help`
+#: needs) does not load torch.
+_PUBLIC = {
+    "RoadConfig": "dynplan.env",
+    "RoadEnv": "dynplan.env",
+    "World": "dynplan.env",
+    "generate_world": "dynplan.env",
+    "AgentSpec": "dynplan.evaluation.agent",
+    "plan_episode": "dynplan.evaluation.protocol",
+    "TECHNIQUES": "dynplan.evaluation.techniques",
+    "register_technique": "dynplan.evaluation.techniques",
+    "WORLD_MODELS": "dynplan.models.registry",
+    "register_world_model": "dynplan.models.registry",
+    "load_world_model": "dynplan.models.world_model",
+}
 
 if "dynplan/Road-v0" not in gymnasium.registry:
     gymnasium.register(id="dynplan/Road-v0", entry_point="dynplan.env.road_env:RoadEnv")
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _PUBLIC:
+        raise AttributeError(f"module 'dynplan' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_PUBLIC[name]), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_PUBLIC})
 
 
 def make_env(**kwargs: Any) -> gymnasium.Env:
