@@ -235,13 +235,34 @@ def test_freeway_rows_replay_to_their_scores_in_a_fresh_emulator():
         assert replay_check(row) is None, (row["technique"], row["mode"], row["episode"])
 
 
+def test_freeways_sticky_run_plays_the_same_episodes_with_sticky_actions_and_replays_with_them():
+    """The run `sticky`: the evaluation's episodes of the planning techniques with the game's sticky actions (its
+    settings), each once; a sample (one per technique and mode) replays with those settings, not without them."""
+    pytest.importorskip("ale_py")
+    from dynplan.worlds.freeway.results import RUNS, SETTINGS, replay_check, settings
+
+    run = Run(FREEWAY_RESULTS, "sticky", RUNS)
+    manifest, rows = run.manifest(), run.current()
+    assert manifest["settings"] == settings(0.25) and manifest["role"] == "evaluation"
+    played = [invocation["command"] for invocation in manifest["invocations"]]
+    assert all(c.startswith("python -m flows.evaluate --world freeway --run sticky --techniques") for c in played)
+    cases = {(r["technique"], r["mode"], r["episode"]) for r in rows}
+    techniques = ("oracle", "learned", "extrapolate", "zero")
+    assert cases == {(t, m, i) for t in techniques for m in (0, 4) for i in range(20)} and len(rows) == len(cases)
+    sample = {(r["technique"], r["mode"]): r for r in rows}
+    for row in sample.values():
+        assert replay_check(row, settings(0.25)) is None, (row["technique"], row["mode"], row["episode"])
+    assert any(replay_check(row, SETTINGS) is not None for row in sample.values())
+
+
 @pytest.mark.slow
-def test_every_committed_freeway_score_holds_when_its_actions_are_replayed():
+@pytest.mark.parametrize("run", ["evaluation", "sticky"])
+def test_every_committed_freeway_score_holds_when_its_actions_are_replayed(run):
     pytest.importorskip("ale_py")
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, "-m", "flows.evaluate", "--world", "freeway", "--check"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=1800)  # fmt: skip
+    command = [sys.executable, "-m", "flows.evaluate", "--world", "freeway", "--run", run, "--check"]
+    done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=1800)
     assert done.returncode == 0, done.stderr[-3000:]
     assert "every row of the run holds" in done.stdout

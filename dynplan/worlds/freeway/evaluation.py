@@ -400,91 +400,87 @@ def results_section(results: str | os.PathLike, run: str = "evaluation") -> list
     """The results page's Freeway section from the run of the store at `results` (none if the run is not there)."""
     if not Run(results, run, RUNS).exists():
         return []
-    lines = results_table(read_run(results, run), EVALUATION_COMMAND, "two or three processes on 2 cores")
     sticky = Run(results, STICKY_RUN, RUNS)
-    if sticky.exists():
-        lines += sticky_table(sticky.current(), sticky.manifest()["settings"]["repeat_action_probability"])
-    return lines
+    played = (sticky.current(), sticky.manifest()["settings"]["repeat_action_probability"]) if sticky.exists() else None
+    return results_table(read_run(results, run), EVALUATION_COMMAND, "2 cores shared", played)
 
 
 #: What a Freeway agent is given, and so what its score measures: the section's first paragraph.
 GIVEN = (
-    "What the agent is given: the chicken's rule, measured from the emulator (its climb, the knock-back and stun of a "
-    "hit, the crossing; docs/worlds.md), the lanes of the game's NOOP shadow (the world without the chicken) and the "
-    "chicken's state from RAM. The learned agent learns only the lanes, from recorded episodes of modes 0–3, 6 and 7: "
-    "mode 0's traffic is in its training, mode 4's (whose speeds change during the game) is not. So its score "
-    "measures its world model, against the oracle (the true lanes), the extrapolator (each lane's cars moved on at "
-    "their speed over the last four steps: a world of constant speeds) and zero (lanes that hold no car)."
+    "Given: the chicken's rule, measured from the emulator (docs/worlds.md), the lanes of the game's NOOP shadow (the "
+    "world without the chicken) and the chicken's state from RAM. The learned agent learns the lanes alone, from "
+    "modes 0–3, 6 and 7 (mode 4's traffic, whose speeds change during the game, it never saw): its score measures "
+    "its world model, against the oracle (the true lanes), the extrapolator (each lane's cars moved on at their speed "
+    "over the last four steps), zero (no cars)."
 )
 
 
-def results_table(results: list[dict], command: str, played: str) -> list[str]:
-    """A Freeway section: what the agent is given, a row per technique and horizon, a column per mode, the learned
-    agent against the oracle and the extrapolator, and the scoreboard beside those; `command` is the one that played
-    the episodes, `played` how (the times' conditions)."""
+def results_table(
+    results: list[dict], command: str, played: str, sticky: tuple[list[dict], float] | None = None
+) -> list[str]:
+    """A Freeway section: what the agent is given, a row per technique and horizon, a column per mode (and per mode
+    of the `sticky` run's rows, played with that probability of sticky actions), the learned agent against the oracle
+    and the extrapolator, and the scoreboard beside those; `command` is the one that played the episodes, `played`
+    how (the times' conditions)."""
     rows = summarise(results)
+    with_sticky = []
+    if sticky is not None:
+        with_sticky = [
+            f"*Sticky* columns: the same episodes, ALE's sticky actions (at each frame the last action repeats "
+            f"with probability {sticky[1]:g}, drawn from the episode's seed; the planner does not model it): "
+            f"the command above with `{STICKY_OPTIONS}`.",
+            "",
+        ]
     lines = [
         "## Atari Freeway",
         "",
         GIVEN,
         "",
-        f"`{command}` (docs/worlds.md): the real game's score, mean ± std over the episodes (NOOP "
-        "starts drawn from the seed), and knocks an episode; a decision's median ms, the prediction's (in a "
-        "lockstep batch, the episode's share of the batch's) and the search's "
-        f"({played}; `python -m dynplan.bench freeway` times one idle core).",
+        f"`{command}`: the game's score, mean ± std (NOOP starts drawn by the seed), and "
+        "knocks an episode; a decision's median ms, prediction (an episode's share of its lockstep batch's) and "
+        f"search ({played}; `python -m dynplan.bench freeway`: one idle core).",
         "",
-        *_table(rows),
+        *with_sticky,
+        *_table(rows, [] if sticky is None else summarise(sticky[0])),
     ]
     return [*lines, "", *_against_the_oracle(rows), *_beside_the_scoreboard(rows)]
 
 
-def _table(rows: list[dict]) -> list[str]:
-    """A row per technique and horizon, a column per mode: mean score ± std and knocks; the decisions' ms."""
-    modes = sorted({row["mode"] for row in rows})
-    cells: dict[tuple[str, int], dict[int, dict]] = {}
-    for row in rows:
-        cells.setdefault((row["technique"], row["horizon"]), {})[row["mode"]] = row
-    header = " | ".join(f"mode {m}" for m in modes)
-    lines = [f"| technique | {header} | ms |", f"|{' --- |' * (len(modes) + 2)}"]
-    for (technique, horizon), by_mode in cells.items():
-        shown = [f"{r['score']:g} ± {r['std']:g}, {r['knocks']:g}" if (r := by_mode.get(m)) else "" for m in modes]
-        ms = " / ".join(f"{r['decision_ms']:g}" for r in by_mode.values() if r["decision_ms"] is not None)
+def _table(rows: list[dict], sticky: list[dict]) -> list[str]:
+    """A row per technique and horizon, a column per mode (then per mode with sticky actions): mean score ± std and
+    knocks; the decisions' ms (without sticky actions)."""
+    columns = [(False, m) for m in sorted({r["mode"] for r in rows})] + [
+        (True, m) for m in sorted({r["mode"] for r in sticky})
+    ]
+    cells: dict[tuple[str, int], dict[tuple[bool, int], dict]] = {}
+    for is_sticky, summary in ((False, rows), (True, sticky)):
+        for row in summary:
+            cells.setdefault((row["technique"], row["horizon"]), {})[(is_sticky, row["mode"])] = row
+    header = " | ".join(f"{'sticky' if is_sticky else 'mode'} {m}" for is_sticky, m in columns)
+    lines = [f"| technique | {header} | ms |", f"|{' --- |' * (len(columns) + 2)}"]
+    for (technique, horizon), by_column in cells.items():
+        shown = [
+            f"{r['score']:g} ± {r['std']:.2g}, {r['knocks']:.3g}" if (r := by_column.get(c)) else "" for c in columns
+        ]
+        ms = " / ".join(
+            f"{r['decision_ms']:.0f}" for (s, _), r in by_column.items() if not s and r["decision_ms"] is not None
+        )
         name = f"{technique} k = {horizon}" if technique in PLANNERS else technique
         lines.append(f"| {name} | {' | '.join(shown)} | {ms} |")
     return lines
 
 
-#: The command that plays the run of the same episodes with the game's sticky actions.
-STICKY_COMMAND = (
-    "python -m flows.evaluate --world freeway --run sticky --techniques oracle learned extrapolate zero "
-    "--modes 0 4 --episodes 20 --seed 0 --horizon 8"
-)
-
-
-def sticky_table(results: list[dict], sticky: float) -> list[str]:
-    """The same episodes played with sticky actions of probability `sticky` (the run `sticky`): what the agents
-    score when the game does not always do what they chose."""
-    return [
-        "### With sticky actions",
-        "",
-        f"`{STICKY_COMMAND}`: the same NOOP starts, with the game repeating its last action at each emulator "
-        f"frame with probability {sticky:g} (ALE's sticky actions, Machado et al.'s protocol; each episode's repeats "
-        "drawn from its own seed, so `--check` replays them). The planner does not model the repeats: it reads the "
-        "chicken from RAM at each step and plans again.",
-        "",
-        *_table(summarise(results)),
-        "",
-    ]
+#: The options that play the same episodes with the game's sticky actions into the run `sticky`.
+STICKY_OPTIONS = "--run sticky --techniques oracle learned extrapolate zero"
 
 
 def _beside_the_scoreboard(rows: list[dict]) -> list[str]:
     """The public scoreboard, beside the differences it does not measure."""
     board = " · ".join(f"{name} {score:g}" for name, score in SCOREBOARD.items())
     return [
-        f"Beside those differences only, the Atari 100k scoreboard (mean scores as published): {board}. Those "
-        "agents learn everything — the chicken's rule, the world, what to do — from 100 k interactions; this one "
-        "is given the rule and the chicken's state and learns the lanes alone, so the scoreboard places the "
-        "game's scores, not the agents.",
+        f"Beside those differences only, the Atari 100k scoreboard (published means): {board}. Those agents learn "
+        "everything from 100 k interactions, this one the lanes alone: the scoreboard places the game's scores, not "
+        "the agents.",
         "",
     ]
 
@@ -518,8 +514,7 @@ def _against_the_oracle(rows: list[dict]) -> list[str]:
     if not parts:
         return []
     return [
-        "Learned against the oracle: " + "; ".join(parts) + ". On mode 0 the oracle at k = 8 scores 34 from NOOP "
-        "starts up to 16 and 33 from later ones (fewer steps), so its mean over uniform starts is 33.55: a mean "
-        "of 33.5 is the oracle's own, which a learned agent can at best tie.",
+        "Learned against the oracle: " + "; ".join(parts) + ". Mode 0's 33.5 is the oracle's own mean at k = 8 "
+        "(34 from NOOP starts up to 16, 33 after: 33.55 over uniform starts), which a learned agent can at best tie.",
         "",
     ]
