@@ -4,7 +4,7 @@
 A world's episode brings what the loop asks of it (`LockstepEpisode`): its forward model (None: it predicts
 nothing, e.g. a technique that reads the true future or does not plan), the frames it has observed, how many
 frames ahead it asks for, and its decision and step given its prediction and its share of the batch's time. The
-road's `run_episodes` and Freeway's `Lockstep` are this loop over their own episodes.
+road's `run_episodes` is this loop over its episodes, and so is each other world's lockstep (a world's package).
 """
 
 from __future__ import annotations
