@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 # Prefect configures its logging once, on importing prefect.main: here, before any test captures output, so that its
-# console handler writes to the session's stream, not to a test's capture closed after it.
+# console handler writes to pytest's own stream, not to a test's capture closed after it.
 import prefect.main  # noqa: F401
 import pytest
 from hypothesis import HealthCheck, settings

@@ -156,6 +156,12 @@ def _hostile_things(folder: Path) -> None:
     (folder / "a_folder" / "notes.txt").write_text("hello")
 
 
+@pytest.fixture(autouse=True)
+def _a_display(monkeypatch):
+    """The play window is patched out: SDL's dummy driver stands for the display `flows.play` checks it has."""
+    monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
+
+
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory) -> Scene:
     root = tmp_path_factory.mktemp("hostile")
