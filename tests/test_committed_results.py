@@ -209,7 +209,7 @@ def test_freeways_committed_run_is_the_evaluation_it_names_played_with_the_commi
     each with one action a step; the manifest names the world, the emulator's settings and the command."""
     pytest.importorskip("ale_py")
     from dynplan.worlds.freeway.evaluation import EVALUATION_COMMAND, TECHNIQUES, FreewayPlan
-    from dynplan.worlds.freeway.results import RUNS, SETTINGS, weights_entry
+    from dynplan.worlds.freeway.results import RUNS, SETTINGS, decode_actions, weights_entry
 
     manifest = Run(FREEWAY_RESULTS, "evaluation", RUNS).manifest()
     assert manifest["world"] == "freeway-v1" and manifest["settings"] == SETTINGS and manifest["role"] == "evaluation"
@@ -220,7 +220,7 @@ def test_freeways_committed_run_is_the_evaluation_it_names_played_with_the_commi
     assert cases == {(t, m, i) for t in TECHNIQUES for m in (0, 4) for i in range(20)} and len(rows) == len(cases)
     for row in rows:
         assert row["noop_start"] == FreewayPlan(mode=row["mode"], episodes=20).episode_list()[row["episode"]].noop_start
-        assert len(row["actions"]) == row["steps"] == 2048 - row["noop_start"]
+        assert len(decode_actions(row["actions"])) == row["steps"] == 2048 - row["noop_start"]
 
 
 def test_freeway_rows_replay_to_their_scores_in_a_fresh_emulator():

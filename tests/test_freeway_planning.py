@@ -18,7 +18,7 @@ from dynplan.worlds.freeway import evaluation
 from dynplan.worlds.freeway.evaluation import FreewayPlan, evaluate_episodes, read_run, summarise
 from dynplan.worlds.freeway.game import BOTTOM_Y, ROAD_VALUES, Chicken, FreewayEpisode, chicken_step
 from dynplan.worlds.freeway.replay import GIF_STEPS
-from dynplan.worlds.freeway.results import RUNS, SETTINGS, replay_check, settings
+from dynplan.worlds.freeway.results import RUNS, SETTINGS, decode_actions, encode_actions, replay_check, settings
 from dynplan.worlds.freeway.search import ChickenSearch, plan_chicken
 
 pytest.importorskip("ale_py")  # the `atari` extra, in `dev`: installed wherever the suite runs
@@ -70,14 +70,16 @@ def test_an_evaluation_resumes_from_its_run_and_its_rows_replay(tmp_path, monkey
     plan, search, run = FreewayPlan(mode=0, episodes=2, seed=0), ChickenSearch(horizon=4), _run(tmp_path)
     played = evaluate_episodes(run, "up", plan, [1], search)[0]
     assert played["episode"] == 1 and played["noop_start"] == plan.episode_list()[1].noop_start
-    assert played["score"] >= 20 and played["actions"] == "1" * played["steps"] and replay_check(played) is None
+    assert played["score"] >= 20 and played["actions"] == f"U{played['steps']}" and replay_check(played) is None
     other_seed = evaluate_episodes(run, "up", FreewayPlan(mode=0, episodes=2, seed=5), [1], search)[0]
     assert other_seed["noop_start"] == FreewayPlan(mode=0, episodes=2, seed=5).episode_list()[1].noop_start
     monkeypatch.setattr(evaluation, "play_episodes", lambda *a, **k: pytest.fail("an episode the run holds is played"))
     assert evaluate_episodes(run, "up", plan, [1], search)[0] == played
     assert read_run(tmp_path, "run") == [played, other_seed]
-    assert "score 0, 0 knocks" in replay_check({**played, "actions": "0" * played["steps"]})
-    assert "not ending on the last" in replay_check({**played, "actions": played["actions"][:-1]})
+    assert "score 0, 0 knocks" in replay_check({**played, "actions": f"N{played['steps']}"})
+    assert "not ending on the last" in replay_check({**played, "actions": f"U{played['steps'] - 1}"})
+    assert decode_actions(encode_actions([1, 1, 0, 2, 2, 2, 1])) == [1, 1, 0, 2, 2, 2, 1]
+    assert encode_actions("1102221") == "U2N1D3U1"
 
 
 def test_a_sticky_run_replays_with_its_own_settings(tmp_path):
@@ -99,7 +101,8 @@ def test_a_run_refuses_a_row_it_cannot_hold(tmp_path):
     run, plan, search = _run(tmp_path), FreewayPlan(mode=0, episodes=1), ChickenSearch(horizon=2)
     row = evaluate_episodes(run, "up", plan, [0], search)[0]
     for bad, why in (({"score": 1e9}, "score"), ({"score": "abc"}, "score"), ({"mode": 9}, "mode"),
-                     ({"actions": "13"}, "actions"), ({"extra": 1}, "extra"), ({"steps": True}, "steps")):  # fmt: skip
+                     ({"actions": "13"}, "actions"), ({"actions": "U3"}, "3 actions"), ({"extra": 1}, "extra"),
+                     ({"steps": True}, "steps")):  # fmt: skip
         with pytest.raises(StoreError, match=why):
             run.append({**row, "episode": 5, **bad})
     (run.episodes_path).write_text(run.episodes_path.read_text() + json.dumps({**row, "score": 1e9}) + "\n")

@@ -38,7 +38,7 @@ from dynplan.worlds.freeway.game import (
     extrapolated,
     record_mode,
 )
-from dynplan.worlds.freeway.results import RUNS, STICKY_RUN
+from dynplan.worlds.freeway.results import RUNS, STICKY_RUN, encode_actions
 from dynplan.worlds.freeway.search import ChickenSearch, plan_chicken
 
 TECHNIQUES = ("oracle", "learned", "extrapolate", "zero", "up", "random")
@@ -74,7 +74,7 @@ class FreewayPlan(Config):
 class FreewayResult:
     """One episode played: the game's score, the times a car knocked the chicken back, the steps played, the
     median milliseconds of a decision (the search's; None for a technique that does not search) and the actions,
-    one digit a step."""
+    one digit a step (a row of the store holds them run-length encoded, `results.encode_actions`)."""
 
     technique: str
     mode: int
@@ -339,7 +339,7 @@ def evaluate_episodes(
             "knocks": played.knocks,
             "steps": played.steps,
             "decision_ms": played.decision_ms,
-            "actions": played.actions,
+            "actions": encode_actions(played.actions),
             **{k: v for k, v in provenance.items() if v is not None},
             "code_version": code_version(),
         }

@@ -7,16 +7,19 @@ row hold, and the check that replays a row's recorded actions in a fresh emulato
                                       starts' draw, episode, horizon), the weights' SHA-256 (learned), the NOOP
                                       start, score, knocks, steps, median decision ms, the actions and the code
 
-The actions are one digit a step (0 NOOP, 1 UP, 2 DOWN): the game is deterministic, so a row's score, knocks and
+The actions are run-length encoded (`encode_actions`: `U52N3D1…`, each action — N NOOP, U UP, D DOWN — and how
+many steps in a row it was played): the game is deterministic, so a row's score, knocks and
 steps follow from its mode, NOOP start and actions alone (`replay_check`), whatever played them — with sticky
 actions (a run's settings), from those and the episode's seed, which draws the frames that repeat.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
-from collections.abc import Mapping
+import re
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Annotated, Literal
 
@@ -44,6 +47,21 @@ def settings(sticky: float) -> dict:
 
 
 Text = Annotated[str, Field(min_length=1)]
+#: An action's letter in a row's run-length encoded actions, by action (0 NOOP, 1 UP, 2 DOWN).
+LETTERS = "NUD"
+RUN = re.compile(r"([NUD])([1-9][0-9]*)")
+
+
+def encode_actions(actions: Iterable[int | str]) -> str:
+    """Actions (0, 1, 2 or their digits), run-length encoded: each action's letter and how many steps in a row."""
+    return "".join(f"{LETTERS[int(a)]}{sum(1 for _ in run)}" for a, run in itertools.groupby(str(a) for a in actions))
+
+
+def decode_actions(encoded: str) -> list[int]:
+    """The actions a row's `encode_actions` string holds, one a step."""
+    return [LETTERS.index(letter) for letter, count in RUN.findall(encoded) for _ in range(int(count))]
+
+
 Count = Annotated[int, Field(ge=0)]
 
 
@@ -84,14 +102,15 @@ class FreewayRow(_Strict):
     knocks: Annotated[int, Field(ge=0, le=GAME_STEPS)]
     steps: Annotated[int, Field(ge=1, le=GAME_STEPS)]
     decision_ms: Annotated[float, Field(ge=0.0)] | None
-    actions: Annotated[str, Field(pattern=r"^[012]+$")]
+    actions: Annotated[str, Field(pattern=r"^([NUD][1-9][0-9]*)+$")]
     world_model_sha256: Text = None
     code_version: Text
 
     @model_validator(mode="after")
     def _one_action_a_step(self) -> FreewayRow:
-        if len(self.actions) != self.steps:
-            raise ValueError(f"holds {len(self.actions)} actions for its {self.steps} steps")
+        played = sum(int(count) for _, count in RUN.findall(self.actions))
+        if played != self.steps:
+            raise ValueError(f"holds {played} actions for its {self.steps} steps")
         if (self.technique == "learned") != (self.model is not None):
             raise ValueError(f"technique {self.technique!r} {'needs' if self.model is None else 'takes no'} model")
         if not math.isclose(self.score, round(self.score)):
@@ -139,14 +158,15 @@ def replayed(row: Mapping, run_settings: Mapping = SETTINGS) -> tuple[float, int
         FreewayEpisode(mode=row["mode"], noop_start=row["noop_start"], sticky=sticky, emulator_seed=seed)
     )
     score, knocks, steps, done = 0.0, 0, 0, False
-    for digit in row["actions"]:
+    actions = decode_actions(row["actions"])
+    for action in actions:
         before = game.chicken
-        step = game.step(int(digit))
+        step = game.step(action)
         score, steps, done = score + step.reward, steps + 1, step.done
         knocks += before.timer == 0 and step.chicken.knocked
         if done:
             break
-    return score, int(knocks), steps, done and steps == len(row["actions"])
+    return score, int(knocks), steps, done and steps == len(actions)
 
 
 def replay_check(row: Mapping, run_settings: Mapping = SETTINGS) -> str | None:
