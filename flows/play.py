@@ -53,7 +53,7 @@ from dynplan.render import error_image
 from dynplan.world import DEFAULT_WORLD, world_names
 from dynplan.world_parts import PlayState as WorldPlayState
 from flows.window import PanelWindow, add_window_options, checked_window_options
-from flows.worlds import own_command, play_main
+from flows.worlds import own_command, play_main, window_key
 
 #: Key name → heading in degrees (90° is up on screen: row 0 of the world is drawn at the bottom).
 MOVE_KEYS = {
@@ -149,16 +149,10 @@ def publish(live: LiveView, state: PlayState) -> None:
 def _on_key(state: PlayState, name: str, modes: tuple[bool, bool], live: LiveView | None) -> tuple[bool, bool]:
     """One key press: its effect on the state; `modes` and the result are (planner_plays, paused)."""
     planner_plays, paused = modes
-    if name == "r":
-        state.reset()
-    elif name == "i" and state.imagination is not None:
+    if (changed := window_key(state, name, planner_plays, paused)) is not None:
+        return changed
+    if name == "i" and state.imagination is not None:
         state.toggle_imagination()
-    elif name == "k":
-        state.cycle_horizon()
-    elif name == "p":
-        planner_plays = not planner_plays
-    elif name == "space":
-        paused = not paused
     elif name in MOVE_KEYS and state.running and not planner_plays:
         state.step(action_of(MOVE_KEYS[name]))
         if live is not None:

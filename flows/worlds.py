@@ -201,17 +201,26 @@ class PlayOptions:
         self.script = None if script is None else list(script)
 
 
-def _handle(state: PlayState, name: str, planner_plays: bool, paused: bool) -> tuple[bool, bool]:
-    """One key press: its effect on the state; returns (planner_plays, paused)."""
+def window_key(state: PlayState, name: str, planner_plays: bool, paused: bool) -> tuple[bool, bool] | None:
+    """A key every play window has — R restarts, K changes the horizon, P hands over to the planner, SPACE pauses —
+    and its effect; (planner_plays, paused) after it, or None for another key."""
     if name == "r":
         state.reset()
     elif name == "k":
         state.cycle_horizon()
-    elif name == "p":
-        planner_plays = not planner_plays
-    elif name == "space":
-        paused = not paused
-    elif name in state.keys and state.running and not planner_plays:
+    elif name in ("p", "space"):
+        return (not planner_plays, paused) if name == "p" else (planner_plays, not paused)
+    else:
+        return None
+    return planner_plays, paused
+
+
+def _handle(state: PlayState, name: str, planner_plays: bool, paused: bool) -> tuple[bool, bool]:
+    """One key press: its effect on the state; returns (planner_plays, paused)."""
+    modes = window_key(state, name, planner_plays, paused)
+    if modes is not None:
+        return modes
+    if name in state.keys and state.running and not planner_plays:
         state.step(state.keys[name])
     return planner_plays, paused
 
