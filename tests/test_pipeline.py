@@ -205,7 +205,7 @@ def test_freeway_run_writes_its_report_and_reruns_from_cache(tmp_path, prefect_a
     assert runs == ["reference"]  # always-UP does not read the weights
     played = work / "results" / "runs" / "reference" / "episodes.jsonl"
     row = json.loads(played.read_text())
-    assert row["actions"] == "1" * row["steps"] and row["steps"] == 2048 - row["noop_start"]
+    assert row["actions"] == f"U{row['steps']}" and row["steps"] == 2048 - row["noop_start"]
     before = _files(work / "checkpoints") | _files(work / "models") | {played: played.stat().st_mtime_ns}
 
     collect_train_eval(preset="smoke", out=str(tmp_path), world="freeway")
