@@ -5,9 +5,8 @@ presets and evaluation plan, its pipeline stages, its benchmarks and what its ru
 The flows are the same for every world: `flows.evaluate --world W` parses the options W's `EvaluateCommand` adds,
 makes its request, plays its jobs as Prefect tasks and prints its summary; `flows.replay` and `flows.play` do the
 same with `ReplayCommand` and `PlayCommand`, and `collect-train-eval` evaluates and reports through
-`PipelineStages`. None of these imports Prefect: a world's package is library code. `flows.replay` takes this path
-for every world, the road's (`dynplan.worlds.road.commands`) too; an evaluate or play part that is None is played
-by the flows' own road commands (the default world's).
+`PipelineStages`. None of these imports Prefect: a world's package is library code. Every world takes this path,
+the road's (`dynplan.worlds.road`) too.
 """
 
 from __future__ import annotations
@@ -25,17 +24,33 @@ from pydantic import BaseModel
 from dynplan.config import Config
 
 
+@dataclass(frozen=True)
+class Recordings:
+    """The recorded episodes an evaluation plays against: `episodes` seeds from `first_seed` in `folder` (the flow
+    records those that are missing before any job starts)."""
+
+    folder: str
+    episodes: int
+    first_seed: int
+
+
 class EvaluateCommand(Protocol):
     """`flows.evaluate --world W`: the options, the request they make (`request_type`, checked before any flow
-    machinery starts), the run begun in the results store (its manifest records `command`) and the episodes it still
-    has to play as jobs (each a Prefect task), one job played into the run, the summary of what the run holds, and
-    the check that replays each of its rows' actions (`--check`: a line per row that does not hold)."""
+    machinery starts; it names its run, `run`), the recorded episodes it plays against (None: none, the world is
+    played live), the run begun in the results store (its manifest records `command`) and the episodes it still
+    has to play as jobs (each a Prefect task; a job is a dict of the world's own keys and `episodes`, how many it
+    plays), one job played into the run, the summary of what the run holds (a table artifact keyed
+    `<summary_key>-<run>`; taken again after every job, so a world that writes a table from it keeps it current),
+    its lines, and the check of each row (`--check`: a line per row that does not hold)."""
 
     request_type: type[Config]
+    summary_key: str
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None: ...
 
     def request(self, args: argparse.Namespace) -> Config: ...
+
+    def recordings(self, request: Config) -> Recordings | None: ...
 
     def start(self, request: Config, command: str) -> list[dict]: ...
 
@@ -64,8 +79,10 @@ class ReplayCommand(Protocol):
 
 
 class PlayState(Protocol):
-    """One interactive episode a play window shows: its panels (RGB images with titles), lines of text, the keys
-    that choose the agent's actions, and what the window's own keys do (restart, horizon, the planner's turn)."""
+    """One interactive episode a play window shows: its panels (RGB images with titles, as many at every step),
+    lines of text, the keys that choose the agent's actions, what the window's own keys do (restart, horizon, the
+    planner's turn), a key of the world's own (`key`: True when it was one), and what it holds until the window
+    closes (`close`: a live view)."""
 
     caption: str
     keys: Mapping[str, int]
@@ -86,12 +103,18 @@ class PlayState(Protocol):
 
     def record(self, path: str | Path) -> Path: ...
 
+    def key(self, name: str) -> bool: ...
+
+    def close(self) -> None: ...
+
 
 class PlayCommand(Protocol):
     """`flows.play --world W`: the options and the state they make (a ValueError or CheckpointError names a bad
-    one); `scale` is the window's default pixels per frame pixel."""
+    one); `scale` is the window's default pixels per frame pixel, `fps` its default frames a second while the
+    planner plays."""
 
     scale: int
+    fps: float
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None: ...
 

@@ -1,9 +1,9 @@
-"""Prefect artifacts of the flows: Table 1 as a table, the report as Markdown, and progress while episodes play and
-models train — shown in the Prefect UI beside the runs that made them.
+"""Prefect artifacts of the flows: an evaluation's summary (the road's Table 1) as a table, the report as Markdown,
+and progress while episodes play and models train — shown in the Prefect UI beside the runs that made them.
 
 Table and report artifacts carry a stable key per preset or run (`table1-quick`, `report-quick`,
-`table1-evaluation`), so successive runs form a history under one key on the UI's Artifacts page. Progress
-artifacts belong to the flow or task run that creates them and are updated in place.
+`table1-evaluation`; Freeway's `freeway-<run>`), so successive runs form a history under one key on the UI's
+Artifacts page. Progress artifacts belong to the flow or task run that creates them and are updated in place.
 """
 
 from __future__ import annotations
@@ -23,23 +23,6 @@ from prefect.client.schemas.filters import ArtifactFilter, ArtifactFilterKey, Ar
 from prefect.client.schemas.objects import Artifact
 from prefect.client.schemas.sorting import ArtifactSort
 
-from dynplan.evaluation.table import render_markdown
-
-#: The table artifact's columns, in order: a row of Table 1 as the evaluation aggregates it.
-TABLE_COLUMNS = (
-    "technique",
-    "model",
-    "agent_speed",
-    "rollout_steps",
-    "episodes",
-    "G",
-    "T",
-    "D",
-    "S_mean",
-    "S_std",
-    "decision_ms_median",
-)
-
 
 def artifact_key(kind: str, name: str) -> str:
     """`kind-name` in the only characters Prefect accepts in a key (lowercase letters, digits, dashes)."""
@@ -47,12 +30,10 @@ def artifact_key(kind: str, name: str) -> str:
     return re.sub(r"-{2,}", "-", key)
 
 
-def publish_table1(rows: Sequence[dict], name: str) -> UUID:
-    """Table 1's aggregated rows as a table artifact keyed `table1-<name>`, with the rendered table as its
-    description."""
-    table = [{column: row.get(column) for column in TABLE_COLUMNS} for row in rows]
-    about = f"Table 1 of {name!r}: goals / timeouts / deaths and steps per technique, speed and k.\n\n"
-    return create_table_artifact(table, key=artifact_key("table1", name), description=about + render_markdown(rows))
+def publish_summary(rows: Sequence[dict], key: str, description: str) -> UUID:
+    """An evaluation's summary rows (the road's: Table 1's) as a table artifact keyed `key`, with the rendered
+    summary as its description."""
+    return create_table_artifact(list(rows), key=key, description=description)
 
 
 def publish_report(markdown: str, name: str) -> UUID:

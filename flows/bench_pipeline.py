@@ -23,17 +23,15 @@ def _evaluate_on_cluster(workers: int, log_dir: Path, results_dir: Path) -> floa
 
     from dynplan.evaluation.agent import AgentSpec
     from dynplan.evaluation.cases import CasePlan
-    from flows.evaluate import evaluate_planner
+    from dynplan.worlds.road.evaluate import RoadEvaluation
+    from flows.worlds import evaluate_world
 
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
         runner = DaskTaskRunner(address=cluster.scheduler_address)
         start = time.perf_counter()
-        evaluate_planner.with_options(task_runner=runner)(
-            plan=CasePlan(**EVAL),
-            agent=AgentSpec(playouts=PLAYOUTS),
-            log_dir=str(log_dir),
-            results_dir=str(results_dir),
-        )
+        agent = AgentSpec(playouts=PLAYOUTS)
+        request = RoadEvaluation(plan=CasePlan(**EVAL), agent=agent, log_dir=str(log_dir), results_dir=str(results_dir))
+        evaluate_world.with_options(task_runner=runner)("road", request.model_dump(mode="json"), "bench_pipeline")
         return time.perf_counter() - start
 
 

@@ -35,9 +35,6 @@ from prefect.cache_policies import NO_CACHE
 from dynplan.cli import CommandParser, add_debug_option
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
-from dynplan.evaluation.agent import AgentSpec
-from dynplan.evaluation.cases import EVAL_SEED_START, CasePlan
-from dynplan.evaluation.table import aggregate, load_results
 from dynplan.files import atomic_path, write_bytes_atomic
 from dynplan.models import checkpoint as checkpoints
 from dynplan.models import pretrained_path
@@ -46,10 +43,7 @@ from dynplan.pipeline.presets import PipelinePreset, pipeline_preset, pipeline_p
 from dynplan.pipeline.report import (
     StageRecord,
     checkpoint_record,
-    draw_figures,
-    figures_section,
     render_report,
-    table_section,
     write_report,
 )
 from dynplan.world import DEFAULT_WORLD, world, world_names
@@ -57,7 +51,6 @@ from flows.artifacts import publish_report
 from flows.build_datasets import build_datasets
 from flows.cli import run
 from flows.collect import collect_episodes
-from flows.evaluate import evaluate_planner
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 from flows.train import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
 from flows.worlds import evaluate_world
@@ -133,30 +126,8 @@ def _write_report(
 
 
 @task(name="report", cache_policy=NO_CACHE)
-def report_task(preset: dict, work: str, eval_logs: str, command: str, stages: list[dict]) -> str:
-    """The road's report: Table 1 and the learned model's pictures."""
-    plan, work_dir = PipelinePreset(**preset), Path(work)
-    start = time.perf_counter()
-    figures = None
-    if plan.learned_techniques:
-        figures = draw_figures(
-            work_dir / "report",
-            {m: work_dir / "models" / m for m in plan.models},
-            Path(eval_logs),
-            EVAL_SEED_START,
-            plan.evaluation.rollout_steps[0],
-            plan.report_episodes,
-            plan.learned_techniques[0],
-        )
-    records = [StageRecord(**s) for s in stages]
-    records.append(StageRecord("report", time.perf_counter() - start, "figures, GIF, Markdown and HTML"))
-    rows = aggregate(load_results(work_dir / "results")) if (work_dir / "results").exists() else []
-    return _write_report(plan, work_dir, command, table_section(rows) + figures_section(figures), records)
-
-
-@task(name="report-world", cache_policy=NO_CACHE)
-def world_report_task(preset: dict, work: str, results: str, command: str, stages: list[dict]) -> str:
-    """Another world's report: the results section its stages write (pictures into the report's folder)."""
+def report_task(preset: dict, work: str, results: str, command: str, stages: list[dict]) -> str:
+    """The world's report: the results section its stages write (pictures into the report's folder)."""
     plan, work_dir = PipelinePreset(**preset), Path(work)
     start = time.perf_counter()
     section = world(plan.world).load().pipeline.report(plan, work_dir, work_dir / "report", command)
@@ -165,42 +136,15 @@ def world_report_task(preset: dict, work: str, results: str, command: str, stage
     return _write_report(plan, work_dir, command, section, records)
 
 
-def _evaluate_road(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
-    """Table 1's cases over the recorded evaluation episodes, then the road's report; (report, evaluation detail)."""
-    e, eval_logs = plan.evaluation, Path(out) / "eval_logs"
-    cases = CasePlan(
-        techniques=e.techniques,
-        models=plan.models,
-        agent_speeds=e.agent_speeds,
-        rollout_steps=e.rollout_steps,
-        episodes=e.episodes,
-    )
-    agent = AgentSpec(playouts=e.playouts, model_dir=str(work / "models"))
-    rows = evaluate_planner.with_options(task_runner=runner)(
-        plan=cases,
-        agent=agent,
-        log_dir=str(eval_logs),
-        results_dir=str(work / "results"),
-        command=command,
-        artifacts=plan.folder,
-    )
-    return str(eval_logs), f"{len(rows)} table rows"
-
-
-def _evaluate_world(plan: PipelinePreset, work: Path, out: str, runner, command: str) -> tuple[str, str]:
-    """The preset's evaluation requests, each through the world's evaluation; (the results folder, detail)."""
+def _evaluate_world(plan: PipelinePreset, work: Path, runner, command: str) -> tuple[str, str]:
+    """The preset's evaluation requests, each through the world's evaluation (its summary's artifact keyed by the
+    preset's name); (the results folder, detail)."""
     requests = world(plan.world).load().pipeline.evaluations(plan, work)
     played = 0
     for request in requests:
         flow = evaluate_world.with_options(task_runner=runner)
-        played += len(flow(plan.world, request.model_dump(mode="json"), command))
+        played += len(flow(plan.world, request.model_dump(mode="json"), command, plan.name))
     return str(work / "results"), f"{len(requests)} runs, {played} summary rows"
-
-
-def _stages(world_name: str) -> tuple:
-    """The world's evaluation stage and report task: its own `PipelineStages`, or the road's."""
-    own = world_name != DEFAULT_WORLD and world(world_name).load().pipeline is not None
-    return (_evaluate_world, world_report_task) if own else (_evaluate_road, report_task)
 
 
 @flow(name="collect-train-eval", log_prints=True)
@@ -243,9 +187,8 @@ def collect_train_eval(
     )
     for model in plan.models:
         stages += world_model_task(plan.model_dump(mode="json"), model, store, str(work))
-    evaluate, report_of = _stages(plan.world)
-    played = timed("evaluate", lambda: evaluate(plan, work, out, runner, command), lambda r: r[1])
-    report = report_of(plan.model_dump(mode="json"), str(work), played[0], command, stages)
+    played = timed("evaluate", lambda: _evaluate_world(plan, work, runner, command), lambda r: r[1])
+    report = report_task(plan.model_dump(mode="json"), str(work), played[0], command, stages)
     print(f"report: {report}")
     return report
 

@@ -1,9 +1,8 @@
-"""The commands of a world that brings its own (`dynplan.world_parts`): one path for every such world.
-
-`flows.replay`, and `flows.evaluate` and `flows.play` with `--world W`, hand their arguments here when the world's
-`WorldParts` has the command: its options are added to a parser of the command's own, its request is made and
-checked before any flow machinery starts (a bad value is one line and exit status 2), and the work runs as a
-Prefect flow (evaluate: one task a job; replay: one flow run) or a pygame window (play).
+"""The commands every world shares, on one path (`dynplan.world_parts`): `flows.evaluate`, `flows.replay` and
+`flows.play` hand their arguments to the world's half of the command (`world_command`; the road's without
+`--world`): its options are added to a parser of the command's own, its request is made and checked before any flow
+machinery starts (a bad value is one line and exit status 2), and the work runs as a Prefect flow (evaluate: one
+task a lockstep batch; replay: one flow run) or a pygame window (play).
 """
 
 from __future__ import annotations
@@ -11,11 +10,13 @@ from __future__ import annotations
 import argparse
 import inspect
 import json
+import os
 import shlex
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
+import torch
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from prefect.futures import as_completed
@@ -26,22 +27,13 @@ from dynplan.paths import PathArgument, PathKind
 from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world, world_names
 from dynplan.world_parts import EvaluateCommand, PlayCommand, PlayState, ReplayCommand, WorldParts
-from flows.runners import task_runner
+from flows.artifacts import ProgressArtifact, artifact_key, publish_summary
+from flows.collect import collect_episodes
+from flows.runners import add_dask_option, checked_dask_address, task_runner
 from flows.window import PanelWindow, add_window_options, checked_window_options
 
 #: A world's half of one of the commands.
 Command = EvaluateCommand | ReplayCommand | PlayCommand
-
-
-def own_command(argv: Sequence[str], command: Callable[[WorldParts], Command | None]) -> tuple[str, Any] | None:
-    """(world, its half of a command: `command` of its parts) when `argv` names a world other than the default whose
-    parts have one; else None (the flows' own road command parses `argv`, and names an unknown world): the
-    commands whose road half is still the flow's own (`flows.evaluate`, `flows.play`; `world_command` for the rest)."""
-    name = named_world(list(argv))
-    if name == DEFAULT_WORLD or name not in world_names():
-        return None
-    own = command(world(name).load())
-    return None if own is None else (name, own)
 
 
 def world_command(prog: str, argv: Sequence[str], command: Callable[[WorldParts], Command | None]) -> tuple[str, Any]:
@@ -93,35 +85,57 @@ def world_job_task(world_name: str, request: dict, job: dict) -> dict:
 
 
 @flow(name="evaluate-world", log_prints=True)
-def evaluate_world(world_name: str, request: dict, command: str) -> list[dict]:
-    """Begin the run of `request` (a world's evaluation request, as a dict; `command`: what its manifest records)
-    and play every episode it lacks, one task a job (the world's: an episode or a lockstep batch of them); print and
-    return the summary of its run."""
+def evaluate_world(world_name: str, request: dict, command: str, artifacts: str | None = None) -> list[dict]:
+    """Record the episodes `request` (a world's evaluation request, as a dict; `command`: what its manifest
+    records) plays against where missing, begin its run and play every episode it lacks, one task a job (the
+    world's: a lockstep batch of episodes); print and return the summary of its run. Publishes the episodes'
+    progress and the summary as Prefect artifacts, the summary keyed `<summary_key>-<artifacts>` (default: the
+    run's name)."""
     own = world(world_name).load().evaluate
     checked = own.request_type(**request)
-    futures = [world_job_task.submit(world_name, request, job) for job in own.start(checked, command)]
-    for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} jobs"):
-        future.result()
+    recordings = own.recordings(checked)
+    if recordings is not None:
+        collect_episodes(recordings.folder, recordings.episodes, recordings.first_seed, world_name=world_name)
+    jobs = own.start(checked, command)
+    total = sum(job["episodes"] for job in jobs)
+    print(f"{total} episodes to play into {world_name} run {checked.run!r}, in {len(jobs)} lockstep batches")
+    futures = [world_job_task.submit(world_name, request, job) for job in jobs]
+    played = ProgressArtifact(f"episodes played into run {checked.run!r}", total)
+    for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} batches"):
+        played.advance(future.result()["episodes"])
+        own.summary(checked)  # a world that writes a table from its run keeps it current
     summary = own.summary(checked)
-    for line in own.describe(summary):
-        print(line)
+    lines = own.describe(summary)
+    publish_summary(summary, artifact_key(own.summary_key, artifacts or checked.run), "\n".join(lines))
+    print(f"\n{world_name} run {checked.run!r}:\n" + "\n".join(lines))
     return summary
 
 
 def evaluate_main(name: str, own: EvaluateCommand, argv: Sequence[str]) -> list[dict]:
-    """`flows.evaluate --world NAME …`."""
+    """`flows.evaluate [--world NAME] …`: the batches run on the local cores (`--workers` at once, torch's
+    threads shared among them) or on a Dask cluster (`--dask-address`)."""
     parser = parser_for("python -m flows.evaluate", name, own)
-    parser.add_argument("--workers", type=Bounded(int, 1, 64), default=None, help="jobs at once (default: cores)")
+    add_dask_option(parser)
+    parser.add_argument(
+        "--workers", type=Bounded(int, 1, 256), help="batches played at once locally, in [1, 256] (default: cores)"
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
-    check = "play nothing: replay each row of the run in a fresh game against its outcome (exit 1 naming misfits)"
+    check = "play nothing: check each row of the run against what it records (exit 1 naming misfits)"
     parser.add_argument("--check", action="store_true", help=check)
     add_debug_option(parser)
     args = parsed(parser, name, argv)
+    try:
+        address = checked_dask_address(args.dask_address)
+    except ValueError as error:
+        parser.error(str(error))
     request = _request(parser, own, args)
     if args.check:
         return _check(own, request)
+    if not address:  # the local pool's batches share the cores; more threads only contend
+        cores = os.cpu_count() or 1
+        torch.set_num_threads(max(1, cores // (args.workers or cores)))
     command = shlex.join(["python", "-m", "flows.evaluate", *argv])
-    summary = evaluate_world.with_options(task_runner=task_runner(None, args.workers))(
+    summary = evaluate_world.with_options(task_runner=task_runner(address, args.workers))(
         world_name=name, request=request.model_dump(mode="json"), command=command
     )
     if args.json:
@@ -137,7 +151,7 @@ def _check(own: EvaluateCommand, request: Any) -> list[dict]:
         raise SystemExit(1)
     summary = own.summary(request)
     print("\n".join(own.describe(summary)))
-    print("every row of the run holds when its actions are replayed")
+    print("every row of the run holds")
     return summary
 
 
@@ -174,12 +188,12 @@ def play_main(name: str, own: PlayCommand, argv: Sequence[str]) -> PlayState:
         default=None,
         help="write what was played to this replay log (.mcap) at the end",
     )
-    add_window_options(parser, own.scale, 15.0, f"pixel of the world (default {own.scale})")
+    add_window_options(parser, own.scale, own.fps, f"pixel of the world (default {own.scale})")
     args = parsed(parser, name, argv)
     script = checked_window_options(parser, args)
     try:
         state = own.state(args)
-    except ValueError as error:  # a CheckpointError too
+    except ValueError as error:  # a CheckpointError and a LogError too
         parser.exit(2, f"python -m flows.play: error: {error}\n")
     return play_window(state, PlayOptions(args.scale, args.fps, args.watch, script, args.record, args.screenshot))
 
@@ -220,6 +234,8 @@ def _handle(state: PlayState, name: str, planner_plays: bool, paused: bool) -> t
     modes = window_key(state, name, planner_plays, paused)
     if modes is not None:
         return modes
+    if state.key(name):
+        return planner_plays, paused
     if name in state.keys and state.running and not planner_plays:
         state.step(state.keys[name])
     return planner_plays, paused
@@ -231,8 +247,8 @@ def play_window(state: PlayState, options: PlayOptions | None = None) -> PlaySta
     import pygame
 
     options = options or PlayOptions()
-    panels = state.panels()
-    window = PanelWindow(panels[0][0].shape[:2], len(panels), options.scale, state.caption, 110)
+    panels, lines = state.panels(), state.status(options.watch, False)
+    window = PanelWindow(panels[0][0].shape[:2], len(panels), options.scale, state.caption, 50 + 24 * len(lines))
     clock, paused, planner_plays, keys = pygame.time.Clock(), False, options.watch, options.script
     try:
         while keys is None or keys:
@@ -253,6 +269,7 @@ def play_window(state: PlayState, options: PlayOptions | None = None) -> PlaySta
                 pygame.image.save(window.screen, str(tmp))
     finally:
         pygame.quit()
+        state.close()
         if options.record is not None and state.turns:
             print(f"recorded {state.record(options.record)}")
     return state

@@ -20,14 +20,16 @@ def test_keys_hold_only_what_prefect_accepts(name, key):
 def test_an_evaluation_publishes_its_table_and_progress(tmp_path, prefect_api):
     from dynplan.evaluation.agent import AgentSpec
     from dynplan.evaluation.cases import CasePlan
-    from flows.evaluate import evaluate_planner
+    from dynplan.worlds.road.evaluate import RoadEvaluation
+    from flows.worlds import evaluate_world
 
     for i in range(2):
         record_episode(tmp_path / "logs", EVAL_SEED_START + i)
     plan = CasePlan(techniques=["oracle", "random"], agent_speeds=[1.0], rollout_steps=[1], episodes=2)
     kwargs = dict(plan=plan, agent=AgentSpec(playouts=5), log_dir=str(tmp_path / "logs"),
                   results_dir=str(tmp_path / "results"), run="trial_run")  # fmt: skip
-    rows = evaluate_planner(**kwargs)
+    request = RoadEvaluation(**kwargs).model_dump(mode="json")
+    rows = evaluate_world("road", request, "python -m flows.evaluate")
     (table,) = read_artifacts(key="table1-trial-run")
     assert table.type == "table" and json.loads(table.data) == [
         {k: r.get(k) for k in json.loads(table.data)[0]} for r in rows
@@ -37,5 +39,5 @@ def test_an_evaluation_publishes_its_table_and_progress(tmp_path, prefect_api):
     assert "| 2× oracle (ours) |" in table.description
     (played,) = [a for a in read_artifacts(kind="progress") if "trial_run" in a.description]
     assert played.data == 100.0 and played.description == "episodes played into run 'trial_run': 4 of 4"
-    evaluate_planner(**kwargs)  # nothing left to play: the table again, a second version under the same key
+    evaluate_world("road", request, "python -m flows.evaluate")  # nothing left to play: a second version of the table
     assert [json.loads(a.data) for a in read_artifacts(key="table1-trial-run")] == [json.loads(table.data)] * 2

@@ -50,7 +50,7 @@ def test_table1_cases_are_the_committed_tables_rows():
 
 def test_a_lockstep_batch_is_every_case_of_its_worlds_that_shares_a_world_model():
     from dynplan.evaluation.cases import table1_cases
-    from flows.evaluate import batches
+    from dynplan.worlds.road.evaluate import batches
 
     todo = table1_cases(episodes=5)
     work = batches(todo, 2)
@@ -100,7 +100,11 @@ def test_aggregate_counts_outcomes_and_steps_over_survivors():
 
 
 def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path, eval_logs, prefect_api):
-    from flows.evaluate import evaluate_planner
+    from dynplan.worlds.road.evaluate import RoadEvaluation
+    from flows.worlds import evaluate_world
+
+    def evaluate_planner(**kwargs):
+        return evaluate_world("road", RoadEvaluation(**kwargs).model_dump(mode="json"), "python -m flows.evaluate")
 
     results = tmp_path / "results"
     plan = CasePlan(techniques=["oracle", "random"], agent_speeds=[1.0], rollout_steps=[1, 3], episodes=2)

@@ -65,7 +65,7 @@ def test_the_oracle_plays_as_in_an_evaluation_and_its_replay_reads_back(tmp_path
     assert log.agent.outcome[-1] == "running"  # quit before the game's end
     np.testing.assert_array_equal(log.imagined[5], state.world.frames[6:22])  # the oracle's lanes are the truth
     shot = pygame.image.load(str(picture))
-    assert shot.get_size() == (4 * 152 + 5 * 8, 154 + 110)
+    assert shot.get_size() == (4 * 152 + 5 * 8, 154 + 50 + 24 * 2)  # four panels, two lines of text below
     with pytest.raises(InputError, match="a log of the freeway world, not --world road's"):
         view([str(out), "--world", "road", "--screenshot", str(tmp_path / "view.png")])  # refused before the app
 

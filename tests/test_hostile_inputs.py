@@ -192,7 +192,7 @@ def invoke(command: Command, argv: list[str]) -> tuple[int | str, str]:
         stack.enter_context(redirect_stdout(io.StringIO()))
         stack.enter_context(mock.patch.object(Flow, "__call__", _accepted))
         for target in (
-            "flows.play.play",
+            "flows.worlds.play_window",
             "flows.serve.serve",
             "flows.bench_pipeline.bench_pipeline",
             "flows.view.install",

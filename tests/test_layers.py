@@ -23,7 +23,7 @@ LAYERS = {
     "models": 4,
     "training": 5,
     "evaluation": 6,
-    "bench": 7, "play": 7,
+    "bench": 7,
     "pipeline": 8,
     "world": 1, "world_parts": 1,
     "worlds": 9, "worlds.road": 9, "worlds.freeway": 9,

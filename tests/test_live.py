@@ -101,7 +101,8 @@ def test_play_serves_every_step_live(monkeypatch):
     pytest.importorskip("pygame")
     from dynplan.logs.format import TOPIC_AGENT_STEP
     from dynplan.logs.live import LiveView
-    from flows.play import build_state, play
+    from dynplan.worlds.road.play import build_state
+    from flows.worlds import PlayOptions, play_window
 
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     state = build_state(seed=2_000_003, imagination=False)
@@ -109,7 +110,8 @@ def test_play_serves_every_step_live(monkeypatch):
 
         def watched_play() -> None:
             view.wait_for_viewer(60)
-            play(state, scale=2, fps=1000, planner_plays=True, script=["f"] * 60, live=view)
+            state.live = view
+            play_window(state, PlayOptions(scale=2, fps=1000, watch=True, script=["f"] * 60))
 
         player = threading.Thread(target=watched_play)
         player.start()

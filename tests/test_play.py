@@ -12,11 +12,12 @@ from dynplan.logs.reader import read_episode_log
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel
 from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
-from dynplan.play import PlayState
+from dynplan.worlds.road.play import MOVE_KEYS, PlayState, action_of, build_state
 
 pygame = pytest.importorskip("pygame")
 
-from flows.play import MOVE_KEYS, action_of, build_state, main, play  # noqa: E402
+from flows.play import main  # noqa: E402
+from flows.worlds import PlayOptions, play_window  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("headless_window")
 SEED = 2_000_003
@@ -60,7 +61,8 @@ def test_keys_play_the_oracles_path_to_the_goal():
     reference = run_episode(world, planner, OracleModel(world), 1.0, 3)
     assert reference.outcome == "goal"
     state = build_state(seed=SEED, imagination=False)
-    played = play(state, scale=2, fps=1000, script=[KEY_OF_ACTION[int(a)] for a in reference.track.action])
+    script = [KEY_OF_ACTION[int(a)] for a in reference.track.action]
+    played = play_window(state, PlayOptions(scale=2, fps=1000, script=script))
     assert played.outcome == "goal" and len(played.track.action) == reference.steps
     np.testing.assert_allclose(played.track.position, reference.track.position)
 
@@ -68,7 +70,7 @@ def test_keys_play_the_oracles_path_to_the_goal():
 def test_the_imagination_rolls_the_model_forward_and_gives_the_world_back(tmp_path):
     state = build_state(seed=SEED)
     out = tmp_path / "played.mcap"
-    play(state, scale=2, fps=1000, script=["i", "w", "w", "i", "d"], record=str(out))
+    play_window(state, PlayOptions(scale=2, fps=1000, script=["i", "w", "w", "i", "d"], record=str(out)))
     assert state.place == "world" and state.t == 4 + 3 and state.running
     log = read_episode_log(out)
     assert list(log.agent.action) == [action_of(90), action_of(90), action_of(0)]

@@ -74,6 +74,7 @@ class Evaluate:
     """
 
     request_type = FreewayEvaluation
+    summary_key = "freeway"
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument(
@@ -140,6 +141,10 @@ class Evaluate:
             model_dir=args.model_dir,
         )
 
+    def recordings(self, request: FreewayEvaluation) -> None:
+        """None: every episode is played in a fresh emulator."""
+        return None
+
     def start(self, request: FreewayEvaluation, command: str) -> list[dict]:
         """Begin (or extend) the run's manifest; the episodes it does not hold yet, one job each."""
         run = Run(request.results, request.run, RUNS)
@@ -158,7 +163,7 @@ class Evaluate:
                 ]
                 for first in range(0, len(missing), request.batch):
                     batch = missing[first : first + request.batch]
-                    jobs.append({"mode": plan.mode, "technique": technique, "indices": batch})
+                    jobs.append({"mode": plan.mode, "technique": technique, "indices": batch, "episodes": len(batch)})
         return jobs
 
     def play(self, request: FreewayEvaluation, job: dict) -> dict:
@@ -291,6 +296,7 @@ class Play:
     """
 
     scale = 3
+    fps = 15.0
 
     def add_arguments(self, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--mode", type=bounded(FreewayEpisode, "mode"), default=0, help="the game mode (0 … 7)")

@@ -129,6 +129,13 @@ class FreewayPlay:
         imagined = {start + i: turn.frames[1:] for i, turn in enumerate(self.turns) if turn.frames is not None}
         return write_episode_log(path, self.world, agent=track(self.turns, start), imagined=imagined or None)
 
+    def key(self, name: str) -> bool:
+        """Freeway has no key of its own beyond its moves and the window's."""
+        return False
+
+    def close(self) -> None:
+        """Nothing is held beyond the episode."""
+
     def panels(self) -> list[tuple[np.ndarray, str]]:
         """What the window shows: the lanes now with the chicken, the true lanes k steps on, those the technique
         searches there, and their error; RGB images with their titles."""

@@ -1,4 +1,5 @@
-"""The road's halves of the commands every world shares (`dynplan.world_parts`): `flows.replay`'s.
+"""The road's halves of the commands every world shares (`dynplan.world_parts`): `flows.replay`'s and
+`flows.play`'s (its evaluation's are `evaluate.py`).
 
 The road is the default world, so these are the commands without `--world`; they run the road's agents
 (`dynplan.evaluation`) against its recorded episodes.
@@ -14,13 +15,15 @@ from pydantic import Field
 
 from dynplan.cli import Bounded, bounded
 from dynplan.config import Config, field_help
+from dynplan.data.collect import CollectPlan
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import AGENT_SPEEDS, road_models
 from dynplan.evaluation.replay import default_outputs, planners, prepare, replay
 from dynplan.evaluation.techniques import TECHNIQUES
-from dynplan.extras import require
+from dynplan.extras import MissingExtra, require
 from dynplan.logs.live import DEFAULT_PORT, LiveView
 from dynplan.paths import PathArgument, PathKind, check_output
+from dynplan.worlds.road.play import HORIZONS, PlayState, build_state
 
 
 class RoadReplay(Config):
@@ -162,3 +165,68 @@ def _add_live_options(parser: argparse.ArgumentParser) -> None:
         default=8.0,
         help="decisions shown per second at most (default 8)",
     )
+
+
+class Play:
+    """`python -m flows.play`: steer the agent with the keyboard in the road world or in the world model's
+    imagination, or watch the planner play.
+
+    Modes:
+      you play       each key press moves the agent one step and the world one frame (the world does not wait
+                     otherwise: it is turn-based, as the planner plays)
+      imagination    the frames come from the learned world model (--model), rolled forward one at a time from
+                     the last four real frames; the agent is judged on them, and the true world is drawn beside
+      planner plays  the planner (--technique, oracle or learned) chooses every step; its predicted frame at the
+                     horizon k is drawn beside the truth
+
+    Keys:
+      W E D C X Z A Q   move up, up-right, right, down-right, down, down-left, left, up-left (arrows: the four axes)
+      I                 switch between the real world and the imagination
+      K                 the planner's horizon k: 1, 3, 5, 10
+      P                 the planner plays / you play
+      SPACE             pause or resume the planner
+      R                 restart the episode
+      ESC               quit (with --record, the log is written first)
+
+    With --live, every step is also served over the Foxglove WebSocket protocol (open it with the replay layout).
+    `--world W` plays another world through its own options and panels (`--world W --help`).
+    """
+
+    scale = 8
+    fps = 8.0
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        source = parser.add_mutually_exclusive_group()
+        seed_help = "play the world of this seed (default 2,000,000)"
+        source.add_argument("--seed", type=bounded(CollectPlan, "seed"), default=None, help=seed_help)
+        log_help = "play the world recorded in this episode log (.mcap)"
+        source.add_argument("--log", type=PathArgument(PathKind.LOG), default=None, help=log_help)
+        speed_help = "1.0 is the 2x agent, 0.5 the 1x"
+        parser.add_argument("--agent-speed", type=float, default=1.0, choices=AGENT_SPEEDS, help=speed_help)
+        model_help = "the world model of the imagination and of a learned planner"
+        parser.add_argument("--model", default="default", choices=road_models(), help=model_help)
+        searching = [n for n, t in TECHNIQUES.items() if t.search]
+        technique_help = "the planner that plays when you press P or pass --watch"
+        parser.add_argument("--technique", default="oracle", choices=searching, help=technique_help)
+        horizon = "the planner's horizon"
+        parser.add_argument("-k", "--rollout-steps", type=int, default=3, choices=HORIZONS, help=horizon)
+        no_imagination = "do not load a world model for the imagination"
+        parser.add_argument("--no-imagination", action="store_true", help=no_imagination)
+        live_help = "also serve every step over the Foxglove WebSocket protocol (the live extra)"
+        parser.add_argument("--live", action="store_true", help=live_help)
+        port_help = "the live view's port (0: any free one)"
+        parser.add_argument("--live-port", type=Bounded(int, 0, 65535), default=DEFAULT_PORT, help=port_help)
+
+    def state(self, args: argparse.Namespace) -> PlayState:
+        """The episode the options ask for; with --live, its live view serving already."""
+        if args.log is not None and args.record is not None:
+            check_output(args.record, "--record", "file", inputs=(args.log,))
+        imagination, k = not args.no_imagination, args.rollout_steps
+        state = build_state(args.seed, args.log, args.agent_speed, args.model, args.technique, k, imagination)
+        if args.live:
+            try:
+                state.live = LiveView(port=args.live_port)
+            except (MissingExtra, RuntimeError, OSError) as error:
+                raise ValueError(f"--live: {error}") from None
+            print(f"serving every step live on {state.live.url} (Foxglove: Open connection, Foxglove WebSocket)")
+        return state

@@ -1,6 +1,6 @@
 """The road's `WorldParts`: its presets and evaluation plan (Table 1's cases), its runs of the results store
-(`ROAD_RUNS`), its Foxglove layouts and its half of `flows.replay` (`commands`). Its evaluate and play commands are
-still the flows' own (`flows.evaluate`, `flows.play` without `--world`), over `dynplan.evaluation`."""
+(`ROAD_RUNS`), its Foxglove layouts, its halves of `flows.evaluate` (`evaluate`), `flows.replay` and `flows.play`
+(`commands`) and its part of `collect-train-eval` (`pipeline`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,9 @@ from dynplan.evaluation.store import ROAD_RUNS
 from dynplan.logs.format import REPLAY_LAYOUT, STUDIO_LAYOUT
 from dynplan.pipeline.presets import ROAD_PRESETS, EvalPlan
 from dynplan.world_parts import WorldParts
-from dynplan.worlds.road.commands import Replay
+from dynplan.worlds.road.commands import Play, Replay
+from dynplan.worlds.road.evaluate import Evaluate
+from dynplan.worlds.road.pipeline import Stages
 
 PARTS = WorldParts(
     presets=ROAD_PRESETS,
@@ -16,5 +18,8 @@ PARTS = WorldParts(
     runs=ROAD_RUNS,
     layout=REPLAY_LAYOUT,
     studio_layout=STUDIO_LAYOUT,
+    evaluate=Evaluate(),
     replay=Replay(),
+    play=Play(),
+    pipeline=Stages(),
 )
