@@ -94,6 +94,13 @@ def test_the_results_page_is_what_its_command_writes():
     assert len(page.encode()) <= 22_000, "docs/results.md grew past 22 kB (Table 1, analyses, Freeway): summarise more"
 
 
+def test_the_lab_runs_page_is_what_its_command_writes():
+    """docs/runs.md is generated from the lab's store (`python -m lab.runs`), never edited by hand."""
+    from lab.runs import LAB_RESULTS, TRAINING, runs_page
+
+    assert (ROOT / "docs" / "runs.md").read_text() == runs_page(LAB_RESULTS, RESULTS, TRAINING)
+
+
 def test_the_evaluation_was_played_with_the_committed_weights():
     manifest = Run(RESULTS).manifest()
     for model, entry in manifest["world_models"].items():

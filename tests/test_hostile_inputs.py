@@ -119,7 +119,8 @@ COMMANDS = {
 
 
 #: The runs of the results store the harness damages (small ones, so that each case is quick).
-RESULT_RUNS = ("validation_paper_margin1", "validation_paper_margin2", "validation_speed05_marginal16")
+#: The rows of the committed evaluation kept in the scene's small store: a partly played evaluation.
+RESULT_ROWS = 300
 
 
 @dataclass
@@ -173,8 +174,12 @@ def scene(tmp_path_factory) -> Scene:
     for name in ("vqvae", "pixelcnn"):  # as a pipeline writes them: saved with their weights' digest
         state = torch.load(pretrained_path(name, "default"), map_location="cpu", weights_only=False)
         checkpoint.save(inputs / "models" / "default" / f"{name}.pt", state)
-    for run in RESULT_RUNS:  # a small store, and the pages made from it
-        shutil.copytree(ROOT / "datasets" / "results" / "runs" / run, inputs / "results" / "runs" / run)
+    evaluation = ROOT / "datasets" / "results" / "runs" / "evaluation"
+    small = inputs / "results" / "runs" / "evaluation"
+    small.mkdir(parents=True)  # a small store (a partly played evaluation), and the pages made from it
+    shutil.copy(evaluation / "manifest.json", small)
+    rows = (evaluation / "episodes.jsonl").read_text().splitlines(keepends=True)[:RESULT_ROWS]
+    (small / "episodes.jsonl").write_text("".join(rows))
     (root / "pages").mkdir()
     shutil.copyfile(ROOT / "README.md", root / "pages" / "README.md")
     scene = Scene(root)

@@ -138,7 +138,7 @@ def test_pipeline_on_a_dask_cluster_equals_a_local_run(tmp_path, dask_cluster, p
     collect_train_eval(preset="smoke", out=str(cluster), dask_address=dask_cluster.address)
     collect_train_eval(preset="smoke", out=str(local))
     worker_logs = "".join(p.read_text() for p in dask_cluster.logs.glob("worker*.log"))
-    assert "Task run 'evaluate-episode" in worker_logs and "Task run 'inspect-log" in worker_logs
+    assert "Task run 'play-world-job" in worker_logs and "Task run 'inspect-log" in worker_logs
 
     def outcomes(root):
         return {(r["technique"], r["model"], r["seed"]): (r["outcome"], r["steps"], r["log_sha256"])

@@ -20,13 +20,15 @@ from dynplan.evaluation.table import aggregate, load_results
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "datasets" / "results"
-#: A small committed run (200 rows), copied for the damage tests.
+#: The lab's store: the validation and candidate runs (docs/runs.md).
+LAB_RESULTS = ROOT / "lab" / "results"
+#: A small committed run of the lab's (200 rows), copied for the damage tests.
 SMALL = "validation_paper_margin1"
 COMMAND = "python -m dynplan.evaluation.results"
 
 
 def small_run(tmp_path: Path) -> Run:
-    shutil.copytree(RESULTS / "runs" / SMALL, tmp_path / "runs" / SMALL)
+    shutil.copytree(LAB_RESULTS / "runs" / SMALL, tmp_path / "runs" / SMALL)
     return Run(tmp_path, SMALL)
 
 
@@ -74,7 +76,7 @@ def test_a_row_that_breaks_the_schema_names_the_file_the_line_and_the_field(tmp_
     assert f"runs/{SMALL}/episodes.jsonl:17: {message}" in text and "\n" not in text
     damaged = run.episodes_path.read_bytes()
     with pytest.raises(StoreError, match=r"episodes.jsonl:17: "):  # nothing is appended to it either
-        run.append({**Run(RESULTS, SMALL).rows()[0], "seed": 2000100})
+        run.append({**Run(LAB_RESULTS, SMALL).rows()[0], "seed": 2000100})
     assert run.episodes_path.read_bytes() == damaged
 
 
@@ -173,7 +175,7 @@ def test_an_identical_repeated_line_is_read_once(tmp_path):
     before = run.rows()
     lines = run.episodes_path.read_text().splitlines()
     run.episodes_path.write_text("\n".join([*lines, lines[4]]) + "\n")
-    assert run.rows() == before and aggregate(run.current()) == aggregate(Run(RESULTS, SMALL).current())
+    assert run.rows() == before and aggregate(run.current()) == aggregate(Run(LAB_RESULTS, SMALL).current())
 
 
 def test_a_torn_last_line_is_cut_whatever_it_holds(tmp_path):
@@ -222,15 +224,16 @@ def test_compare_refuses_a_damaged_run_in_one_line(tmp_path, capsys):
     run = small_run(tmp_path)
     edit_row(run, 17, _set("steps", "abc"))
     with pytest.raises(SystemExit) as caught:
-        compare_main([str(RESULTS), SMALL, str(tmp_path), SMALL])
+        compare_main([str(LAB_RESULTS), SMALL, str(tmp_path), SMALL])
     assert caught.value.code == 2
     assert "episodes.jsonl:17: field 'steps' = 'abc' is not an integer" in capsys.readouterr().err.splitlines()[-1]
 
 
-def test_the_committed_store_fits_its_schema():
+@pytest.mark.parametrize("store", [RESULTS, LAB_RESULTS], ids=["product", "lab"])
+def test_the_committed_stores_fit_their_schema(store):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no torn rows either
-        check_store(RESULTS)
+        check_store(store)
 
 
 # -- the pages ---------------------------------------------------------------------------------------------------
@@ -281,18 +284,26 @@ def test_a_mistyped_results_dir_is_refused_and_not_created(checkout, capsys):
     assert "elsewhere: not a results store (no runs/ folder in it)" in line and _pages(checkout) == _pages(ROOT)
 
 
-def test_a_store_short_of_the_pages_is_refused_unless_asked(checkout, capsys):
-    """A run gone from the store: the pages would drop its rows; refused, naming them, and written only with
-    --allow-loss."""
-    shutil.rmtree(checkout / "datasets" / "results" / "runs" / "validation_margin1")
-    line = _refused([], capsys)
-    assert "docs/results.md would lose 1 of its" in line
+def test_a_store_short_of_the_lab_page_is_refused_unless_asked(tmp_path, capsys):
+    """A run gone from the lab's store: docs/runs.md would drop its rows; refused, naming them, and written only
+    with --allow-loss."""
+    from lab.runs import main as runs_main
+
+    shutil.copytree(LAB_RESULTS, tmp_path / "lab")
+    shutil.rmtree(tmp_path / "lab" / "runs" / "validation_margin1")
+    page = tmp_path / "runs.md"
+    shutil.copy(ROOT / "docs" / "runs.md", page)
+    argv = ["--results-dir", str(tmp_path / "lab"), "--reference-dir", str(RESULTS), "--out", str(page)]
+    with pytest.raises(SystemExit) as caught:
+        runs_main(argv)
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert caught.value.code == 2 and "runs.md would lose 1 entries" in line
     assert "(Validation, candidate and superseded runs / `validation_margin1` / 2× samples5 [default])" in line
-    assert line.endswith("; check --results-dir, or pass --allow-loss to write them anyway")
-    assert _pages(checkout) == _pages(ROOT)
-    results_module.main(["--allow-loss"])
-    page = (checkout / "docs" / "results.md").read_text()
-    assert "`validation_margin1`" not in page and "`validation_margin2`" not in page and "`validation`" in page
+    assert line.endswith("; check --results-dir, or pass --allow-loss to write it anyway")
+    assert page.read_bytes() == (ROOT / "docs" / "runs.md").read_bytes()
+    runs_main([*argv, "--allow-loss"])
+    text = page.read_text()
+    assert "`validation_margin1`" not in text and "`validation_margin2`" not in text and "`validation`" in text
 
 
 def test_fewer_episodes_are_a_loss(checkout, capsys):
@@ -315,12 +326,12 @@ def test_fewer_episodes_are_a_loss(checkout, capsys):
 def test_a_manifest_with_string_numbers_is_refused_not_dropped(checkout, capsys):
     """Playouts written as "100" would make every row of the run stale and its lines vanish from the page: the
     command refuses, naming the file and line, and writes nothing."""
-    run = Run(checkout / "datasets" / "results", "default_epoch7")
+    run = Run(checkout / "datasets" / "results")
     text = run.manifest_path.read_text()
     run.manifest_path.write_text(text.replace('"playouts": 100,', '"playouts": "100",'))
     number = text[: text.index('"playouts"')].count("\n") + 1
     line = _refused([], capsys)
-    assert f"runs/default_epoch7/manifest.json:{number}: field 'playouts' = '100' is not an integer" in line
+    assert f"runs/evaluation/manifest.json:{number}: field 'playouts' = '100' is not an integer" in line
     assert _pages(checkout) == _pages(ROOT)
 
 
@@ -328,7 +339,8 @@ def test_lost_entries_name_rows_episodes_and_images():
     page = (ROOT / "docs" / "results.md").read_text()
     entries = page_entries(page)
     assert entries["Table 1 / 2× oracle (ours)"] == 400 and entries["Table 1 / 2× random"] == 100
-    assert entries["Validation, candidate and superseded runs / `default_epoch7` / 2× futures5 [default]"] == 370
+    runs = page_entries((ROOT / "docs" / "runs.md").read_text())
+    assert runs["Validation, candidate and superseded runs / `default_epoch7` / 2× futures5 [default]"] == 370
     assert entries["image figure1_default.png"] == 0
     assert lost_entries(page, page) == [] and lost_entries(page, page + "\n| extra | 1/2/3 |\n") == []
     lines = page.splitlines()

@@ -1,8 +1,9 @@
 """`python -m dynplan.evaluation.results`: write Table 1 and the results page from the results store.
 
 Writes `datasets/results/table1.{json,md}` (from the evaluation runs), `docs/results.md` (Table 1 beside the paper,
-one table of every validation, candidate and superseded run, prediction error against the horizon, Figure 1 and the
-causes of the learned agents' deaths) and the Table 1 block of README.md. Everything on the page comes from files of the
+prediction error against the horizon, Figure 1, the causes of the learned agents' deaths and every other world's
+section) and the Table 1 block of README.md; the lab's validation and candidate runs are docs/runs.md's
+(`python -m lab.runs`). Everything on the page comes from files of the
 store; the page is regenerated, never edited (a test compares it with what this command writes).
 
 Nothing a page shows is lost without being asked: a `--results-dir` that does not exist is refused (not created),
@@ -20,7 +21,7 @@ import re
 from pathlib import Path
 
 from dynplan.cli import CommandParser, InputError, run_command
-from dynplan.evaluation.store import EVALUATION_RUN, ROLES, Run, runs, shown
+from dynplan.evaluation.store import shown
 from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, table_files
 from dynplan.files import write_bytes_atomic
 from dynplan.paths import PathArgument, PathKind, check_input, check_output
@@ -48,10 +49,6 @@ class ResultsError(InputError):
 
 def _pct(x: float) -> str:
     return f"{100 * x:.1f}"
-
-
-def _caution(entry: dict) -> str:
-    return ", ".join(f"{k} {v:g}" for k, v in sorted(entry.get("caution", {}).items())) or "none"
 
 
 def prediction_section(results: Path, docs: Path) -> list[str]:
@@ -154,96 +151,6 @@ def _deaths_cell(summary: dict, episodes: int) -> str:
     return f"{summary['deaths']}{of}: " + "/".join(str(summary.get(c, 0)) for c in DEATH_CAUSES)
 
 
-def _weights(entry: dict, committed: dict, records: dict[str, str]) -> str:
-    """`committed` when a world model's weights are the evaluation's; else each other file: its training record
-    (found by SHA-256) or the name the manifest gives it, with the SHA-256's first 8 digits."""
-    names = entry.get("weights", [])
-    hashes = entry["weights_sha256"].split("+")
-    ours = committed.get("weights_sha256", "").split("+")
-    other = [(i, h) for i, h in enumerate(hashes) if i >= len(ours) or h != ours[i]]
-    if not other:
-        return "committed"
-    named = [records.get(h) or (f"`{names[i]}`" if i < len(names) else "unnamed") for i, h in other]
-    return ", ".join(f"{n} ({h[:8]})" for n, (_, h) in zip(named, other, strict=True))
-
-
-def _training_records(results: Path) -> dict[str, str]:
-    """The candidate priors' records beside the store (`datasets/training/*/provenance.json`) by weights SHA-256."""
-    out = {}
-    for path in sorted((results.parent / "training").glob("*/provenance.json")):
-        sha = json.loads(path.read_text()).get("sha256")
-        if sha:
-            out[sha] = f"record `{path.parent.name}`"
-    return out
-
-
-def _gtd(row: dict, full: int) -> str:
-    partial = f" (of {row['episodes']})" if row["episodes"] < full else ""
-    return f"{row['G']}/{row['T']}/{row['D']}{partial}"
-
-
-def _agents(run: Run, manifest: dict) -> dict[tuple, dict]:
-    """A run's aggregated rows by agent (technique, model, speed), then by k, in Table 1's order."""
-    agents: dict[tuple, dict] = {}
-    for row in aggregate(run.current(manifest)):
-        agents.setdefault((row["technique"], row.get("model"), row["agent_speed"]), {})[row["rollout_steps"]] = row
-    return agents
-
-
-def _run_lines(
-    run: Run, agents: dict[tuple, dict], reference: dict, records: dict[str, str], ks: list[int]
-) -> list[str]:
-    """A run's lines of the summary: one per agent (`agents`, `_agents`), a G/T/D cell per k; the run's name and
-    role, its caution and weights only where they change. `reference`: the evaluation's manifest (what `committed`
-    means)."""
-    manifest = run.manifest()
-    lines, last = [], None
-    for (technique, model, speed), by_k in agents.items():
-        entry = manifest["world_models"].get(model, {}) if model else {}
-        caution = _caution(entry) if entry else "–"
-        if manifest["playouts"] != reference.get("playouts", manifest["playouts"]):
-            caution += f"; {manifest['playouts']} playouts"
-        committed = reference.get("world_models", {}).get(model, {})
-        setting = (caution, _weights(entry, committed, records) if entry else "–")
-        head = f"`{run.name}` | {manifest['role']}" if last is None else "″ |"
-        shown = " | ".join(setting) if setting != last else "″ | ″"
-        last = setting
-        agent = f"{speed * 2:g}× {technique}" + (f" [{model}]" if model else "")
-        cells = [_gtd(by_k[k], len(manifest["episode_seeds"])) if k in by_k else "" for k in ks]
-        lines.append(f"| {head} | {agent} | {shown} | " + " | ".join(cells) + " |")
-    return lines
-
-
-def runs_section(results: Path) -> list[str]:
-    """Every validation, candidate and superseded run in one table."""
-    chosen = [run for role in ROLES if role != "evaluation" for run in runs(results, role)]
-    if not chosen:
-        return []
-    evaluation = Run(results, EVALUATION_RUN)
-    reference = evaluation.manifest() if evaluation.exists() else {}
-    agents = {run.name: _agents(run, run.manifest()) for run in chosen}
-    ks = sorted({k for found in agents.values() for by_k in found.values() for k in by_k if k is not None})
-    lines = [
-        "## Validation, candidate and superseded runs",
-        "",
-        "*Validation* runs play the validation episodes (seeds 2,000,000…), where settings were chosen; "
-        "*candidate* runs replay weights or settings not adopted on the evaluation episodes; *superseded* runs "
-        "hold the evaluation of weights or settings since replaced. Cells: goals / timeouts / deaths (`of N`: "
-        "fewer episodes than the run's); ″: as above; weights: `committed` (Table 1's) or those that differ "
-        "(SHA-256 prefix). A run's commands are in `datasets/results/runs/RUN/manifest.json`; a line plays "
-        "again with `python -m flows.evaluate --run RUN --techniques T --models M --agent-speeds S "
-        "--rollout-steps K`, the caution's options, `--model-dir DIR` for other weights and, on validation "
-        "episodes, `--first-seed 2000000 --log-dir datasets/validation_logs`.",
-        "",
-        "| run | role | agent | caution | weights | " + " | ".join(f"k = {k}" for k in ks) + " |",
-        "|" + " --- |" * (5 + len(ks)),
-    ]
-    records = _training_records(results)
-    for run in chosen:
-        lines += _run_lines(run, agents[run.name], reference, records, ks)
-    return [*lines, ""]
-
-
 def results_page(results: Path, docs: Path, rows: list[dict] | None = None) -> str:
     """docs/results.md from the store at `results` (`rows`: Table 1's aggregated rows, if already at hand)."""
     rows = aggregate(load_results(results)) if rows is None else rows
@@ -253,7 +160,8 @@ def results_page(results: Path, docs: Path, rows: list[dict] | None = None) -> s
         f"Generated by `{COMMAND}` from the results store (`datasets/results/`); do not edit by hand. Each "
         "figure below names the command that measured it; the runs' manifests (`datasets/results/runs/*/"
         "manifest.json`) hold the weights' SHA-256, the caution, the episode seeds, the logs' checksums and "
-        "every command line that played them.",
+        "every command line that played them. The validation and candidate runs where settings were chosen are the "
+        "lab's: docs/runs.md.",
         "",
         "## Table 1",
         "",
@@ -268,7 +176,6 @@ def results_page(results: Path, docs: Path, rows: list[dict] | None = None) -> s
         render_markdown(rows).rstrip("\n"),
         "",
     ]
-    lines += runs_section(results)
     lines += prediction_section(results, docs)
     lines += figure1_section(results, docs)
     lines += deaths_section(results)
