@@ -1,6 +1,7 @@
 """Evaluation protocol, Table 1 aggregation, and replay (library, flow and command line)."""
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -130,6 +131,29 @@ def test_evaluate_flow_plays_only_what_is_missing_and_writes_the_table(tmp_path,
     # a validation run is a run of its own, and Table 1 does not count it
     evaluate_planner(**{**kwargs, "plan": plan.model_copy(update={"rollout_steps": (1,)}), "run": "other"})
     assert Run(results, "other").manifest()["role"] == "candidate" and len(load_results(results)) == 6
+
+
+def test_check_names_each_row_whose_recorded_episode_changed(tmp_path, eval_logs, prefect_api, capsys):
+    """`flows.evaluate --check` plays nothing: each row's recorded episode is the one it was played on (a road row
+    names its log by SHA-256), and a row whose log changed or went missing is named, exit 1."""
+    from flows.evaluate import main
+
+    logs = tmp_path / "logs"
+    shutil.copytree(eval_logs, logs)
+    argv = ["--techniques", "oracle", "--agent-speeds", "1.0", "--rollout-steps", "1", "--episodes", "2",
+            "--playouts", "5", "--log-dir", str(logs), "--results-dir", str(tmp_path / "results"),
+            "--run", "x"]  # fmt: skip
+    played = main(argv)
+    rows = Run(tmp_path / "results", "x").rows()
+    assert main([*argv, "--check"]) == played and Run(tmp_path / "results", "x").rows() == rows  # nothing played
+    assert capsys.readouterr().out.rstrip().endswith("every row of the run holds")
+    log_path(logs, EVAL_SEED_START + 1).unlink()
+    record_episode(logs, EVAL_SEED_START + 1, n_frames=300)  # another recording under the row's file name
+    with pytest.raises(SystemExit) as stop:
+        main([*argv, "--check"])
+    (problem,) = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 1 and f"technique=oracle seed={EVAL_SEED_START + 1}: log " in problem
+    assert "the row was played on" in problem and Run(tmp_path / "results", "x").rows() == rows
 
 
 def test_replay_round_trips_through_the_reader(tmp_path, eval_logs):
