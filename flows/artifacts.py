@@ -2,8 +2,9 @@
 and progress while episodes play and models train — shown in the Prefect UI beside the runs that made them.
 
 Table and report artifacts carry a stable key per preset or run (`table1-quick`, `report-quick`,
-`table1-evaluation`; Freeway's `freeway-<run>`), so successive runs form a history under one key on the UI's
-Artifacts page. Progress artifacts belong to the flow or task run that creates them and are updated in place.
+`table1-evaluation`; another world's summary `<its summary key>-<run>`), so successive runs form a history under one
+key on the UI's Artifacts page. Progress artifacts belong to the flow or task run that creates them and are updated
+in place.
 """
 
 from __future__ import annotations
