@@ -18,7 +18,7 @@ from dynplan.render import upscale
 
 #: The environment variables that name a display on Linux: X11's and Wayland's, and SDL's own choice of driver.
 DISPLAY_VARIABLES = ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")
-INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame)"
+INSTALL = "the play window needs pygame: pip install 'dynplan[play]' (or pip install pygame-ce)"
 #: Pixels between panels.
 GAP = 8
 
