@@ -1,0 +1,107 @@
+"""MiniGrid Dynamic-Obstacles through the same logs and frames store as every world: an episode is the package's
+room without the agent — walls and goal fixed, every ball a step of its random walk each frame, the same frames from
+the same seed — written to MCAP and read back exactly, and `flows.collect --world minigrid` and
+`flows.build_datasets` store and verify it."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from dynplan.config import ConfigError
+from dynplan.data.collect import log_path, record_episode
+from dynplan.logs.reader import read_episode_log
+from dynplan.world import world, world_names
+
+pytest.importorskip("minigrid")  # the `minigrid` extra, in `dev`: installed wherever the suite runs
+
+from dynplan.worlds.minigrid.grid import PIXEL_VALUES, MiniGridConfig, record_world
+
+MINIGRID = world("minigrid")
+BALL, WALL, GOAL = PIXEL_VALUES["ball"], PIXEL_VALUES["wall"], PIXEL_VALUES["goal"]
+
+
+@pytest.fixture(scope="module")
+def room():
+    return record_world(MiniGridConfig(), 3, 120)
+
+
+def _balls(frame: np.ndarray) -> set[tuple[int, int]]:
+    return {(int(r), int(c)) for r, c in zip(*np.nonzero(frame == BALL), strict=True)}
+
+
+def test_the_world_is_registered_with_its_extra_and_seeds():
+    assert "minigrid" in world_names() and MINIGRID.id == "minigrid-v1" and MINIGRID.extra == "minigrid"
+    assert MINIGRID.values() == (0, 72, 144, 244) and MINIGRID.background == PIXEL_VALUES["floor"]
+    with pytest.raises(ConfigError, match=r"seed=-1 is invalid for the minigrid world; valid range \[0, "):
+        MINIGRID.check_seed(-1)
+
+
+def test_a_recording_is_the_room_with_walls_and_goal_fixed_and_every_ball_walking(room):
+    frames = room.frames
+    assert frames.shape == (120, 16, 16) and frames.dtype == np.uint8
+    assert set(np.unique(frames).tolist()) == set(PIXEL_VALUES.values())
+    border = np.ones((16, 16), bool)
+    border[1:-1, 1:-1] = False
+    assert (frames[:, border] == WALL).all() and (frames[:, 1, 14] == GOAL).all()  # the goal: bottom right
+    assert np.array_equal(room.goal[0], [1, 14]) and np.array_equal(room.agent_start, [14, 1])  # agent: top left
+    for before, after in itertools.pairwise(frames):
+        old, new = _balls(before), _balls(after)
+        assert len(old) == len(new) == 8 and old != new  # the balls walk every step
+        for r, c in new:  # each ball one cell (a king's move) from where one was
+            assert any(max(abs(r - r0), abs(c - c0)) <= 1 for r0, c0 in old)
+
+
+def test_the_same_seed_gives_the_same_room_and_another_seed_another(room):
+    assert np.array_equal(record_world(MiniGridConfig(), 3, 120).frames, room.frames)
+    assert not np.array_equal(record_world(MiniGridConfig(), 4, 120).frames, room.frames)
+
+
+def test_a_bad_room_is_refused_in_one_line():
+    with pytest.raises(ValueError, match=r"obstacles=12 is invalid for size 16: MiniGrid places at most 8"):
+        record_world(MiniGridConfig(obstacles=12), 0, 2)
+    with pytest.raises(ConfigError, match="size"):
+        MiniGridConfig(size=3)
+
+
+def test_an_episode_round_trips_through_its_log(tmp_path, room):
+    record_episode(tmp_path, 3, n_frames=120, world_name="minigrid")
+    log = read_episode_log(log_path(tmp_path, 3))
+    assert np.array_equal(log.frames, room.frames) and np.allclose(log.goal, room.goal)
+    first = log_path(tmp_path, 3).read_bytes()
+    log_path(tmp_path, 3).unlink()
+    record_episode(tmp_path, 3, n_frames=120, world_name="minigrid")
+    assert log_path(tmp_path, 3).read_bytes() == first  # byte-reproducible
+
+
+def test_the_commands_collect_store_and_verify_the_world(tmp_path):
+    """`flows.collect --world minigrid` records rooms (its own options refused beside the road's), and
+    `flows.build_datasets --world minigrid` stores them; `--verify` finds the store whole."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import zarr
+
+    logs, store = tmp_path / "logs", tmp_path / "rooms.zarr"
+
+    def command(*args: str) -> subprocess.CompletedProcess:
+        root = Path(__file__).resolve().parents[1]
+        return subprocess.run([sys.executable, "-m", *args], cwd=root, capture_output=True, text=True, timeout=300)
+
+    done = command("flows.collect", "--world", "minigrid", "--episodes", "3", "--seed", "7", "--out", str(logs),
+                   "--json")  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout.splitlines()[-1])["written"] == 3
+    level = command("flows.collect", "--world", "minigrid", "--level", "3", "--out", str(logs))
+    assert level.returncode == 2 and "--level: the road world's, not --world minigrid's" in level.stderr
+    built = command("flows.build_datasets", str(logs), "--world", "minigrid", "--out", str(store))
+    assert built.returncode == 0, built.stderr
+    group = zarr.open_group(str(store), mode="r")
+    assert group.attrs["world"] == "minigrid" and group.attrs["episodes"] == 3
+    assert group["frames"].shape[1:] == (257, 16, 16)
+    verified = command("flows.build_datasets", "--verify", str(store), str(logs))
+    assert verified.returncode == 0, verified.stderr
