@@ -1,7 +1,9 @@
 """MiniGrid Dynamic-Obstacles through the same logs and frames store as every world: an episode is the package's
 room without the agent — walls and goal fixed, every ball a step of its random walk each frame, the same frames from
 the same seed — written to MCAP and read back exactly, and `flows.collect --world minigrid` and
-`flows.build_datasets` store and verify it."""
+`flows.build_datasets` store and verify it. The agent turns and moves as MiniGrid's and is judged by the paper's
+rule; judging many sequences against many futures is judging each; the futures each technique assumes keep the
+balls; the planner with the true future reaches the goal."""
 
 from __future__ import annotations
 
@@ -17,7 +19,10 @@ from dynplan.world import world, world_names
 
 pytest.importorskip("minigrid")  # the `minigrid` extra, in `dev`: installed wherever the suite runs
 
+from dynplan.worlds.minigrid import futures as techniques
+from dynplan.worlds.minigrid.agent import AGENT_START_POSE, FORWARD, LEFT, RIGHT, Outcome, Pose, roll, step
 from dynplan.worlds.minigrid.grid import PIXEL_VALUES, MiniGridConfig, record_world
+from dynplan.worlds.minigrid.search import GridSearch, plan_grid, sequences
 
 MINIGRID = world("minigrid")
 BALL, WALL, GOAL = PIXEL_VALUES["ball"], PIXEL_VALUES["wall"], PIXEL_VALUES["goal"]
@@ -105,3 +110,64 @@ def test_the_commands_collect_store_and_verify_the_world(tmp_path):
     assert group["frames"].shape[1:] == (257, 16, 16)
     verified = command("flows.build_datasets", "--verify", str(store), str(logs))
     assert verified.returncode == 0, verified.stderr
+
+
+# -- the agent and its planner ---------------------------------------------------------------------------------
+FLOOR = PIXEL_VALUES["floor"]
+
+
+def _room(*balls: tuple[int, int]) -> np.ndarray:
+    frame = np.full((16, 16), FLOOR, np.uint8)
+    frame[[0, -1], :] = frame[:, [0, -1]] = WALL
+    frame[1, 14] = GOAL
+    for cell in balls:
+        frame[cell] = BALL
+    return frame
+
+
+def test_the_rule_turns_moves_and_judges_a_step():
+    empty = _room()
+    assert step(Pose(5, 5, 0), LEFT, empty, empty) == (Pose(5, 5, 3), Outcome.RUNNING)  # right → up
+    assert step(Pose(5, 5, 0), RIGHT, empty, empty) == (Pose(5, 5, 1), Outcome.RUNNING)  # right → down
+    assert step(Pose(5, 5, 3), FORWARD, empty, empty) == (Pose(6, 5, 3), Outcome.RUNNING)  # up: row + 1
+    assert step(Pose(5, 14, 0), FORWARD, empty, empty)[1] == Outcome.DEATH  # into the wall
+    assert step(Pose(2, 14, 1), FORWARD, empty, empty) == (Pose(1, 14, 1), Outcome.GOAL)
+    assert step(Pose(5, 5, 0), LEFT, empty, _room((5, 5)))[1] == Outcome.DEATH  # a ball onto the agent
+    assert step(Pose(5, 5, 0), FORWARD, _room((5, 6)), _room((5, 5)))[1] == Outcome.DEATH  # swapped with a ball
+    assert step(Pose(5, 5, 0), FORWARD, _room((5, 6)), _room((6, 7)))[1] == Outcome.RUNNING  # it moved away first
+
+
+def test_rolling_many_sequences_is_stepping_each(room):
+    rng = np.random.default_rng(0)
+    seqs = rng.integers(0, 3, (20, 6))
+    poses, outcomes = roll(np.array([AGENT_START_POSE]), seqs, room.frames[None, :7])
+    for sequence, pose, outcome in zip(seqs, poses[:, 0], outcomes[:, 0], strict=True):
+        now, ended = AGENT_START_POSE, Outcome.RUNNING
+        for t, action in enumerate(sequence):
+            if ended == Outcome.RUNNING:
+                now, ended = step(now, int(action), room.frames[t], room.frames[t + 1])
+        assert tuple(pose) == tuple(now) and Outcome(int(outcome)) == ended
+
+
+def test_futures_keep_the_balls_and_the_walk_moves_each_a_kings_move(room):
+    rng = np.random.default_rng(1)
+    walked = techniques.walk(room.frames, 10, 4, 8, rng)
+    assert walked.shape == (8, 5, 16, 16) and (walked[:, 0] == room.frames[10]).all()
+    for future in walked:
+        for before, after in itertools.pairwise(future):
+            old, new = _balls(before), _balls(after)
+            assert len(new) == 8 and all(any(max(abs(r - a), abs(c - b)) <= 1 for a, b in old) for r, c in new)
+    for name in ("oracle", "stand_still", "constant_velocity"):
+        seen = getattr(techniques, name)(room.frames, 10, 4)
+        assert seen.shape == (1, 5, 16, 16) and all(len(_balls(f)) == 8 for f in seen[0]), name
+    assert (techniques.oracle(room.frames, 10, 4)[0] == room.frames[10:15]).all()
+
+
+def test_the_planner_with_the_true_future_reaches_the_goal(room):
+    assert sequences(2).tolist() == [[a, b] for a in range(3) for b in range(3)]
+    pose, outcome, t = AGENT_START_POSE, Outcome.RUNNING, 0
+    while outcome == Outcome.RUNNING and t < len(room.frames) - 1:
+        decision = plan_grid(pose, techniques.oracle(room.frames, t, 5), room.goal[0], GridSearch())
+        pose, outcome = step(pose, decision.action, room.frames[t], room.frames[t + 1])
+        t += 1
+    assert outcome == Outcome.GOAL and t < 60
