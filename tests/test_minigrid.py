@@ -171,3 +171,30 @@ def test_the_planner_with_the_true_future_reaches_the_goal(room):
         pose, outcome = step(pose, decision.action, room.frames[t], room.frames[t + 1])
         t += 1
     assert outcome == Outcome.GOAL and t < 60
+
+
+def test_an_evaluation_plays_each_technique_into_its_run_resumes_and_checks_its_rows(tmp_path, prefect_api, capsys):
+    import json
+
+    from dynplan.evaluation.store import Run
+    from flows.evaluate import main
+
+    argv = ["--world", "minigrid", "--techniques", "oracle", "stand_still", "random", "--episodes", "3",
+            "--first-seed", "3000000", "--batch", "2", "--results-dir", str(tmp_path), "--run", "trial"]  # fmt: skip
+    by = {r["technique"]: r for r in main(argv)}
+    assert by["oracle"]["success"] == 1.0 and by["random"]["success"] == 0.0 and by["random"]["deaths"] == 3
+    assert {r["episodes"] for r in by.values()} == {3}
+    run = Run(tmp_path, "trial")
+    rows = run.rows()
+    assert len(rows) == 9 and run.manifest()["world"] == "minigrid-v1" and run.manifest()["settings"]["samples"] == 64
+    main(argv)  # nothing left to play
+    assert run.rows() == rows
+    assert main([*argv, "--check"]) and capsys.readouterr().out.rstrip().endswith("every row of the run holds")
+    lines = run.episodes_path.read_text().splitlines()
+    at, oracle = next((i, r) for i, r in enumerate(rows) if r["technique"] == "oracle")
+    lines[at] = json.dumps({**oracle, "actions": f"F{oracle['steps']}"}, separators=(",", ":"))  # into the wall
+    run.episodes_path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(SystemExit) as stop:
+        main([*argv, "--check"])
+    (problem,) = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 1 and f"technique=oracle seed={oracle['seed']}: its actions replay to death" in problem

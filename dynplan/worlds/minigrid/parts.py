@@ -1,7 +1,10 @@
-"""MiniGrid's `WorldParts`: what it brings above its frames (each part added as it is built)."""
+"""MiniGrid's `WorldParts`: its evaluation (`commands.Evaluate`) and its runs of the results store
+(`results.RUNS`)."""
 
 from __future__ import annotations
 
 from dynplan.world_parts import WorldParts
+from dynplan.worlds.minigrid.commands import Evaluate
+from dynplan.worlds.minigrid.results import RUNS
 
-PARTS = WorldParts()
+PARTS = WorldParts(evaluate=Evaluate(), runs=RUNS)
