@@ -198,3 +198,25 @@ def test_an_evaluation_plays_each_technique_into_its_run_resumes_and_checks_its_
         main([*argv, "--check"])
     (problem,) = capsys.readouterr().err.strip().splitlines()
     assert stop.value.code == 1 and f"technique=oracle seed={oracle['seed']}: its actions replay to death" in problem
+
+
+def test_the_committed_evaluation_fits_its_schema_replays_and_is_the_pages_table():
+    """The committed run: every row through the schema, every 20th played again in its room, and each technique's
+    success ± standard error as docs/minigrid.md shows it."""
+    from pathlib import Path
+
+    from dynplan.evaluation.store import Run, check_store
+    from dynplan.worlds.minigrid.evaluation import summarise
+    from dynplan.worlds.minigrid.results import replay_check
+
+    root = Path(__file__).resolve().parents[1]
+    store = root / "datasets" / "results" / "minigrid"
+    check_store(store)
+    run = Run(store)
+    rows, settings = run.current(), run.manifest()["settings"]
+    assert len(rows) == 1000 and settings["samples"] == 64
+    assert [replay_check(row, settings) for row in rows[::20]] == [None] * 50
+    page = (root / "docs" / "minigrid.md").read_text()
+    for line in summarise(rows):
+        shown = f"{line['success']:.2f}" + (f" ± {line['se']:.2f}" if line["se"] else "")
+        assert f"| {shown} | {line['deaths']} |" in page, line
