@@ -212,6 +212,7 @@ def main(argv: list[str] | None = None) -> str:
     args = parser.parse_args(argv)
     try:
         check_output(args.out, "--out", "folder")
+        pipeline_preset(args.preset, args.world)  # a world without it: one line, before any flow machinery
         address = checked_dask_address(args.dask_address)
     except (ConfigError, ValueError) as error:
         parser.error(str(error))

@@ -220,3 +220,12 @@ def test_the_committed_evaluation_fits_its_schema_replays_and_is_the_pages_table
     for line in summarise(rows):
         shown = f"{line['success']:.2f}" + (f" ± {line['se']:.2f}" if line["se"] else "")
         assert f"| {shown} | {line['deaths']} |" in page, line
+
+
+def test_a_pipeline_the_world_has_no_preset_for_is_one_line(capsys):
+    from flows.collect_train_eval import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["--world", "minigrid", "--preset", "smoke", "--out", "unused"])
+    line = capsys.readouterr().err.strip().splitlines()[-1]
+    assert stop.value.code == 2 and line.endswith("error: preset 'smoke': the minigrid world has no pipeline presets")

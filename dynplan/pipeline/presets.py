@@ -221,6 +221,8 @@ def pipeline_presets(world_name: str = DEFAULT_WORLD) -> dict[str, PipelinePrese
 def pipeline_preset(name: str, world_name: str = DEFAULT_WORLD) -> PipelinePreset:
     """The preset `name` of `world_name`; a ValueError naming the valid ones otherwise."""
     presets = pipeline_presets(world_name)
+    if not presets:
+        raise ValueError(f"preset {name!r}: the {world_name} world has no pipeline presets")
     if name not in presets:
         raise ValueError(f"preset must be one of {sorted(presets)} for the {world_name} world, got {name!r}")
     return presets[name]
