@@ -229,3 +229,19 @@ def test_a_pipeline_the_world_has_no_preset_for_is_one_line(capsys):
         main(["--world", "minigrid", "--preset", "smoke", "--out", "unused"])
     line = capsys.readouterr().err.strip().splitlines()[-1]
     assert stop.value.code == 2 and line.endswith("error: preset 'smoke': the minigrid world has no pipeline presets")
+
+
+@pytest.mark.usefixtures("headless_window")
+def test_the_play_window_steers_the_agent_and_the_planner_plays_to_the_goal(tmp_path):
+    pytest.importorskip("pygame")
+    from flows.play import main
+
+    keys = main(["--world", "minigrid", "--technique", "oracle", "--script", "d,w,w,a,w", "--scale", "4"])
+    assert keys.turns == [RIGHT, FORWARD, FORWARD, LEFT, FORWARD] and keys.poses[-1][:2] == (12, 2)  # down 2, right 1
+    out = tmp_path / "played.mcap"
+    watched = main(["--world", "minigrid", "--technique", "oracle", "--watch", "--fps", "1000", "--scale", "4",
+                    "--record", str(out), "--script", ",".join(["f"] * 80)])  # fmt: skip
+    assert watched.outcomes[-1] == "goal" and not watched.running
+    log = read_episode_log(out)
+    assert list(log.agent.action) == watched.turns and log.agent.outcome[-1] == "goal"
+    assert np.array_equal(log.agent.position[-1], [1, 14])  # the goal's cell

@@ -1,5 +1,5 @@
-"""MiniGrid's halves of the commands every world shares (`dynplan.world_parts`): `flows.evaluate --world minigrid`,
-the request it makes and what it does with one."""
+"""MiniGrid's halves of the commands every world shares (`dynplan.world_parts`): `flows.evaluate --world minigrid`
+(the request it makes and what it does with one) and `flows.play --world minigrid`."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.worlds.minigrid.evaluation import TECHNIQUES, evaluate_episodes, summarise
 from dynplan.worlds.minigrid.grid import MiniGridConfig
+from dynplan.worlds.minigrid.play import HORIZONS, PLANNERS, MiniGridPlay
 from dynplan.worlds.minigrid.results import RUNS, replay_check
 from dynplan.worlds.minigrid.search import GridSearch
 
@@ -126,3 +127,39 @@ class Evaluate:
             if problem is not None:
                 problems.append(f"technique={row['technique']} seed={row['seed']}: {problem}")
         return problems
+
+
+class Play:
+    """`python -m flows.play --world minigrid`: steer the agent through a room with the keyboard, or watch the
+    planner play it, with what the technique sees k steps ahead beside the truth.
+
+    Turn-based, as the planner plays: each key press is one step of the agent and of the balls. The right-hand
+    panels show, at every step, the true room k steps on and what the technique (--technique: walk, a sample of
+    the balls' move rule; oracle, the true future; stand_still; constant_velocity) searches there, whoever plays.
+
+    Keys:
+      A or LEFT         turn left
+      D or RIGHT        turn right
+      W or UP           move forward
+      K                 the planner's horizon k: 3, 5, 6
+      P                 the planner plays / you play
+      SPACE             pause or resume the planner
+      R                 restart the episode
+      ESC               quit (with --record, the replay log is written first)
+    """
+
+    scale = 24
+    fps = 8.0
+
+    def add_arguments(self, parser: argparse.ArgumentParser) -> None:
+        seed = f"the room's seed (default {EVAL_SEED:,}, the evaluation's first)"
+        parser.add_argument("--seed", type=Bounded(int, 0, 2**62), default=EVAL_SEED, help=seed)
+        technique = "the planner that plays (P) and whose futures are shown (default walk)"
+        parser.add_argument("--technique", default="walk", choices=PLANNERS, help=technique)
+        horizon = "the planner's horizon (K cycles through 3, 5, 6)"
+        parser.add_argument("-k", "--horizon", type=int, default=5, choices=HORIZONS, help=horizon)
+        samples = "futures the walk technique samples a decision (default 64)"
+        parser.add_argument("--samples", type=Bounded(int, 1, 4096), default=64, help=samples)
+
+    def state(self, args: argparse.Namespace) -> MiniGridPlay:
+        return MiniGridPlay(args.seed, args.technique, args.horizon, args.samples)

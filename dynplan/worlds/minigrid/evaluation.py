@@ -23,7 +23,8 @@ from dynplan.worlds.minigrid.search import GridSearch, plan_grid
 TECHNIQUES = TECHNIQUE_NAMES
 
 
-def _futures(technique: str, room: MiniGridWorld, t: int, search: GridSearch, samples: int, rng) -> np.ndarray:
+def futures_of(technique: str, room: MiniGridWorld, t: int, search: GridSearch, samples: int, rng) -> np.ndarray:
+    """What the technique tells the planner of the room's next k frames at step t, (F, k + 1, H, W)."""
     if technique == "walk":
         return futures.walk(room.frames, t, search.horizon, samples, rng)
     return getattr(futures, technique)(room.frames, t, search.horizon)
@@ -40,7 +41,7 @@ def play_episode(technique: str, room: MiniGridWorld, search: GridSearch, sample
         if technique == "random":
             action = int(rng.integers(0, 3))
         else:
-            action = plan_grid(pose, _futures(technique, room, t, search, samples, rng), room.goal[0], search).action
+            action = plan_grid(pose, futures_of(technique, room, t, search, samples, rng), room.goal[0], search).action
         ms.append((time.perf_counter() - start) * 1e3)
         pose, outcome = step(pose, action, room.frames[t], room.frames[t + 1])
         actions.append(action)
