@@ -98,7 +98,7 @@ def evaluate_world(world_name: str, request: dict, command: str, artifacts: str 
         collect_episodes(recordings.folder, recordings.episodes, recordings.first_seed, world_name=world_name)
     jobs = own.start(checked, command)
     total = sum(job["episodes"] for job in jobs)
-    print(f"{total} episodes to play into {world_name} run {checked.run!r}, in {len(jobs)} lockstep batches")
+    print(f"{total} episodes to play into {world_name} run {checked.run!r}, in {len(jobs)} batches, one task each")
     futures = [world_job_task.submit(world_name, request, job) for job in jobs]
     played = ProgressArtifact(f"episodes played into run {checked.run!r}", total)
     for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} batches"):
