@@ -9,9 +9,12 @@ and `line_of` finds that place's line in a JSON document, so that a message name
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import re
+from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
@@ -54,11 +57,42 @@ def _durations(values: list) -> list:
 Durations = Annotated[list, AfterValidator(_durations)]
 
 
-class _Schema(BaseModel):
+class StrictSchema(BaseModel):
+    """A record of the store: frozen, strict types (a bool is no int, a str no number), no other keys, finite."""
+
     model_config = ConfigDict(frozen=True, strict=True, extra="forbid", allow_inf_nan=False)
 
 
-class RowSchema(_Schema):
+@dataclass(frozen=True)
+class RunLengthActions:
+    """A row's actions, run-length encoded: each action's letter (`letters[action]`) and how many steps in a row it
+    was played (`U52N3D1…`), so an episode of thousands of steps is a short string."""
+
+    letters: str
+
+    @property
+    def pattern(self) -> str:
+        """What a row's encoded actions match: one or more letter-and-count runs."""
+        return rf"^([{self.letters}][1-9][0-9]*)+$"
+
+    def encode(self, actions: Iterable[int | str]) -> str:
+        """Actions (indices, or their digits) encoded."""
+        runs = itertools.groupby(int(a) for a in actions)
+        return "".join(f"{self.letters[a]}{sum(1 for _ in run)}" for a, run in runs)
+
+    def decode(self, encoded: str) -> list[int]:
+        """The actions an encoded string holds, one a step."""
+        return [self.letters.index(letter) for letter, count in self._runs(encoded) for _ in range(int(count))]
+
+    def steps(self, encoded: str) -> int:
+        """How many steps an encoded string holds."""
+        return sum(int(count) for _, count in self._runs(encoded))
+
+    def _runs(self, encoded: str) -> list[tuple[str, str]]:
+        return re.findall(rf"([{self.letters}])([1-9][0-9]*)", encoded)
+
+
+class RowSchema(StrictSchema):
     """One line of `episodes.jsonl`: the case, how its episode went, and its provenance. Any other key is a
     setting recorded by code that had it (part of the row's provenance), a JSON scalar."""
 
@@ -83,7 +117,7 @@ class RowSchema(_Schema):
     code_version: Text = None
 
 
-class RecordedCaution(_Schema):
+class RecordedCaution(StrictSchema):
     """A world model's caution in a manifest: the settings that are on, and any of other code's (scalars)."""
 
     model_config = ConfigDict(extra="allow")
@@ -93,20 +127,20 @@ class RecordedCaution(_Schema):
     margin: Margin | None = None
 
 
-class WorldModelEntry(_Schema):
+class WorldModelEntry(StrictSchema):
     weights_sha256: Text
     weights: list[Text] = []
     caution: RecordedCaution = RecordedCaution()
 
 
-class Invocation(_Schema):
+class Invocation(StrictSchema):
     command: Text
     code_version: Text
     started: Text | None
     equivalent: Text | None = None
 
 
-class ManifestSchema(_Schema):
+class ManifestSchema(StrictSchema):
     """A run's `manifest.json`."""
 
     format: Literal[FORMAT]

@@ -15,17 +15,15 @@ actions (a run's settings), from those and the episode's seed, which draws the f
 
 from __future__ import annotations
 
-import itertools
 import math
 import os
-import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
-from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, WorldModelEntry
+from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, RunLengthActions, StrictSchema, WorldModelEntry
 from dynplan.models.checkpoint import weights_sha256
 from dynplan.models.world_model import world_model_paths
 from dynplan.world_parts import RunKind
@@ -47,36 +45,22 @@ def settings(sticky: float) -> dict:
 
 
 Text = Annotated[str, Field(min_length=1)]
-#: An action's letter in a row's run-length encoded actions, by action (0 NOOP, 1 UP, 2 DOWN).
-LETTERS = "NUD"
-RUN = re.compile(r"([NUD])([1-9][0-9]*)")
-
-
-def encode_actions(actions: Iterable[int | str]) -> str:
-    """Actions (0, 1, 2 or their digits), run-length encoded: each action's letter and how many steps in a row."""
-    return "".join(f"{LETTERS[int(a)]}{sum(1 for _ in run)}" for a, run in itertools.groupby(str(a) for a in actions))
-
-
-def decode_actions(encoded: str) -> list[int]:
-    """The actions a row's `encode_actions` string holds, one a step."""
-    return [LETTERS.index(letter) for letter, count in RUN.findall(encoded) for _ in range(int(count))]
+#: A row's actions run-length encoded, a letter an action (N NOOP, U UP, D DOWN).
+ACTIONS_CODE = RunLengthActions("NUD")
+encode_actions, decode_actions = ACTIONS_CODE.encode, ACTIONS_CODE.decode
 
 
 Count = Annotated[int, Field(ge=0)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(frozen=True, strict=True, extra="forbid", allow_inf_nan=False)
-
-
-class Settings(_Strict):
+class Settings(StrictSchema):
     """What every row of a run depends on besides its case: the emulator's options."""
 
     repeat_action_probability: Annotated[float, Field(ge=0.0, le=1.0)]
     frameskip: Literal[4]
 
 
-class FreewayManifest(_Strict):
+class FreewayManifest(StrictSchema):
     """A Freeway run's `manifest.json`."""
 
     format: Literal[FORMAT]
@@ -88,7 +72,7 @@ class FreewayManifest(_Strict):
     invocations: list[Invocation]
 
 
-class FreewayRow(_Strict):
+class FreewayRow(StrictSchema):
     """One line of a Freeway run's `episodes.jsonl`."""
 
     technique: Literal[TECHNIQUE_NAMES]
@@ -102,13 +86,13 @@ class FreewayRow(_Strict):
     knocks: Annotated[int, Field(ge=0, le=GAME_STEPS)]
     steps: Annotated[int, Field(ge=1, le=GAME_STEPS)]
     decision_ms: Annotated[float, Field(ge=0.0)] | None
-    actions: Annotated[str, Field(pattern=r"^([NUD][1-9][0-9]*)+$")]
+    actions: Annotated[str, Field(pattern=ACTIONS_CODE.pattern)]
     world_model_sha256: Text = None
     code_version: Text
 
     @model_validator(mode="after")
     def _one_action_a_step(self) -> FreewayRow:
-        played = sum(int(count) for _, count in RUN.findall(self.actions))
+        played = ACTIONS_CODE.steps(self.actions)
         if played != self.steps:
             raise ValueError(f"holds {played} actions for its {self.steps} steps")
         if (self.technique == "learned") != (self.model is not None):

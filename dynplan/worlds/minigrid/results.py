@@ -12,14 +12,12 @@ row): the room is recorded from its seed, so a row's outcome and steps follow fr
 
 from __future__ import annotations
 
-import itertools
-import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
-from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, WorldModelEntry
+from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, RunLengthActions, StrictSchema, WorldModelEntry
 from dynplan.world_parts import RunKind
 from dynplan.worlds.minigrid import WORLD
 from dynplan.worlds.minigrid.agent import AGENT_START_POSE, Outcome, step
@@ -27,30 +25,16 @@ from dynplan.worlds.minigrid.grid import MiniGridConfig, record_world
 
 #: The techniques a row may name (`dynplan.worlds.minigrid.evaluation.TECHNIQUES`).
 TECHNIQUE_NAMES = ("oracle", "walk", "stand_still", "constant_velocity", "random")
-#: An action's letter in a row's run-length encoded actions, by action (0 turn left, 1 turn right, 2 forward).
-LETTERS = "LRF"
-RUN = re.compile(r"([LRF])([1-9][0-9]*)")
+#: A row's actions run-length encoded, a letter an action (L turn left, R turn right, F forward).
+ACTIONS_CODE = RunLengthActions("LRF")
+encode_actions, decode_actions = ACTIONS_CODE.encode, ACTIONS_CODE.decode
 OUTCOMES = ("goal", "death", "timeout")
-
-
-def encode_actions(actions: Iterable[int]) -> str:
-    """Actions run-length encoded: each action's letter and how many steps in a row."""
-    return "".join(f"{LETTERS[a]}{sum(1 for _ in run)}" for a, run in itertools.groupby(int(a) for a in actions))
-
-
-def decode_actions(encoded: str) -> list[int]:
-    """The actions a row's `encode_actions` string holds, one a step."""
-    return [LETTERS.index(letter) for letter, count in RUN.findall(encoded) for _ in range(int(count))]
 
 
 Text = Annotated[str, Field(min_length=1)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(frozen=True, strict=True, extra="forbid", allow_inf_nan=False)
-
-
-class Settings(_Strict):
+class Settings(StrictSchema):
     """What every row of a run depends on besides its case: the room and the search."""
 
     size: Annotated[int, Field(ge=5, le=64)]
@@ -61,7 +45,7 @@ class Settings(_Strict):
     samples: Annotated[int, Field(ge=1, le=4096)]
 
 
-class MiniGridManifest(_Strict):
+class MiniGridManifest(StrictSchema):
     """A MiniGrid run's `manifest.json`."""
 
     format: Literal[FORMAT]
@@ -73,7 +57,7 @@ class MiniGridManifest(_Strict):
     invocations: list[Invocation]
 
 
-class MiniGridRow(_Strict):
+class MiniGridRow(StrictSchema):
     """One line of a MiniGrid run's `episodes.jsonl`."""
 
     technique: Literal[TECHNIQUE_NAMES]
@@ -82,12 +66,12 @@ class MiniGridRow(_Strict):
     outcome: Literal[OUTCOMES]
     steps: Annotated[int, Field(ge=1, le=100_000)]
     decision_ms: Annotated[float, Field(ge=0.0)]
-    actions: Annotated[str, Field(pattern=r"^([LRF][1-9][0-9]*)+$")]
+    actions: Annotated[str, Field(pattern=ACTIONS_CODE.pattern)]
     code_version: Text
 
     @model_validator(mode="after")
     def _one_action_a_step(self) -> MiniGridRow:
-        played = sum(int(count) for _, count in RUN.findall(self.actions))
+        played = ACTIONS_CODE.steps(self.actions)
         if played != self.steps:
             raise ValueError(f"holds {played} actions for its {self.steps} steps")
         return self
