@@ -222,9 +222,14 @@ def test_the_committed_evaluation_fits_its_schema_replays_and_is_the_pages_table
         assert f"| {shown} | {line['deaths']} |" in page, line
 
 
-def test_a_pipeline_the_world_has_no_preset_for_is_one_line(capsys):
+def test_a_pipeline_the_world_has_no_preset_for_is_one_line(capsys, monkeypatch):
+    """A world without pipeline presets (MiniGrid's parts without its own) is refused before any flow starts."""
+    import dataclasses
+
+    from dynplan.worlds.minigrid import parts
     from flows.collect_train_eval import main
 
+    monkeypatch.setattr(parts, "PARTS", dataclasses.replace(parts.PARTS, presets={}))
     with pytest.raises(SystemExit) as stop:
         main(["--world", "minigrid", "--preset", "smoke", "--out", "unused"])
     line = capsys.readouterr().err.strip().splitlines()[-1]

@@ -29,5 +29,6 @@ WORLD = World(
     actions=grid.ACTIONS,
     clear=(grid.PIXEL_VALUES["floor"], grid.PIXEL_VALUES["goal"]),
     parts="dynplan.worlds.minigrid.parts:PARTS",
+    models="dynplan.worlds.minigrid.models",
     extra="minigrid",
 )

@@ -5,7 +5,8 @@ frame a step whatever it does. Judged as the paper judges its agent (not as Mini
 forward into a ball or wall ends the episode, before the balls move): after a step the agent dies if it stands on a
 ball, if it swapped cells with one (it moved onto a ball's cell as a ball moved onto its own), or if it moved
 forward into a wall; it wins on reaching the goal's cell. `step` judges one agent; `roll` judges many action
-sequences against many futures at once, as the search does.
+sequences against many futures at once; `roll_chances` does the same against each future's chance of a ball in
+every cell, as the search does.
 """
 
 from __future__ import annotations
@@ -85,3 +86,41 @@ def _judge(
     died = into_wall | (after[futures, rows, cols] == BALL) | swapped
     won = now[futures, rows, cols] == GOAL
     return np.where(died, Outcome.DEATH, np.where(won, Outcome.GOAL, Outcome.RUNNING)), into_wall
+
+
+class Rolled(NamedTuple):
+    """Action sequences against futures of chances (A, F each): where each ended (A, F, 3) and its chances of having
+    reached the goal and of having died (the rest it is still running)."""
+
+    poses: np.ndarray
+    won: np.ndarray
+    died: np.ndarray
+
+
+def roll_chances(pose: Pose, actions: np.ndarray, layout: np.ndarray, balls: np.ndarray) -> Rolled:
+    """`roll` in expectation: every sequence of `actions` (A, K) from `pose` against every future of `balls`
+    (F, K + 1, H, W), each cell's chance of a ball now and at each step, in a room of `layout` (H, W: its walls and
+    goal, which do not move). A step kills with the chance of a ball on the cell it ends on, or of swapping with one
+    (a ball on the cell it moves onto now, times one on the cell it leaves after), taken as independent; with 0/1
+    chances it is `roll` exactly."""
+    n_seq, k = actions.shape
+    futures = np.arange(balls.shape[0])[None, :]
+    at = np.broadcast_to(np.array(pose, np.int64), (n_seq, balls.shape[0], 3)).copy()
+    won, died = np.zeros(at.shape[:2]), np.zeros(at.shape[:2])
+    for t in range(k):
+        running = 1.0 - won - died
+        action = actions[:, t][:, None]
+        forward = np.broadcast_to(action == FORWARD, running.shape)
+        target = at[..., :2] + HEADINGS[at[..., 2]] * forward[..., None]
+        into_wall = forward & (layout[target[..., 0], target[..., 1]] == WALL)
+        now, after = balls[:, t], balls[:, t + 1]
+        swap = forward * now[futures, target[..., 0], target[..., 1]] * after[futures, at[..., 0], at[..., 1]]
+        hit = after[futures, target[..., 0], target[..., 1]]
+        survive = np.where(into_wall, 0.0, (1.0 - hit) * (1.0 - swap))
+        won += running * survive * (layout[target[..., 0], target[..., 1]] == GOAL)
+        died += running * (1.0 - survive)
+        heading = at[..., 2]
+        turned = np.where(action == LEFT, (heading + 3) % 4, np.where(action == RIGHT, (heading + 1) % 4, heading))
+        at[..., :2] = np.where(into_wall[..., None], at[..., :2], target)
+        at[..., 2] = turned
+    return Rolled(at, won, died)

@@ -4,7 +4,8 @@ a row hold, and the check that plays a row's recorded actions in its room again.
     <root>/runs/<run>/manifest.json   role, world `minigrid-v1`, the room's and the search's settings, every
                                       command that played the run
     <root>/runs/<run>/episodes.jsonl  one row per episode: its case (technique, world model, seed), how it ended,
-                                      its steps, median decision ms, the actions and the code
+                                      its steps, median decision ms, the actions, the code and (learned rows) the
+                                      SHA-256 of the world model's weights
 
 The actions are run-length encoded (`L2F5R1…`: L turn left, R turn right, F forward, each with how many steps in a
 row): the room is recorded from its seed, so a row's outcome and steps follow from its seed and actions alone.
@@ -23,8 +24,11 @@ from dynplan.worlds.minigrid import WORLD
 from dynplan.worlds.minigrid.agent import AGENT_START_POSE, Outcome, step
 from dynplan.worlds.minigrid.grid import MiniGridConfig, record_world
 
-#: The techniques a row may name (`dynplan.worlds.minigrid.evaluation.TECHNIQUES`).
-TECHNIQUE_NAMES = ("oracle", "walk", "stand_still", "constant_velocity", "random")
+#: The techniques a row may name (`dynplan.worlds.minigrid.evaluation.TECHNIQUES`); `learnedS` plans against S
+#: futures the world model samples.
+TECHNIQUE_NAMES = ("oracle", "walk", "learned10", "learned5", "learned1", "stand_still", "constant_velocity", "random")
+#: The learned techniques, by the futures each samples a decision.
+LEARNED_SAMPLES = {"learned10": 10, "learned5": 5, "learned1": 1}
 #: A row's actions run-length encoded, a letter an action (L turn left, R turn right, F forward).
 ACTIONS_CODE = RunLengthActions("LRF")
 encode_actions, decode_actions = ACTIONS_CODE.encode, ACTIONS_CODE.decode
@@ -68,13 +72,24 @@ class MiniGridRow(StrictSchema):
     decision_ms: Annotated[float, Field(ge=0.0)]
     actions: Annotated[str, Field(pattern=ACTIONS_CODE.pattern)]
     code_version: Text
+    world_model_sha256: Text | None = None
 
     @model_validator(mode="after")
     def _one_action_a_step(self) -> MiniGridRow:
         played = ACTIONS_CODE.steps(self.actions)
         if played != self.steps:
             raise ValueError(f"holds {played} actions for its {self.steps} steps")
+        learned = self.technique in LEARNED_SAMPLES
+        if learned != (self.model is not None) or learned != (self.world_model_sha256 is not None):
+            need = "needs a model and its world_model_sha256" if learned else "takes no model"
+            raise ValueError(f"technique {self.technique!r} {need}")
         return self
+
+
+def expected(manifest: Mapping, case: Mapping) -> dict:
+    """What a manifest asks of a row's provenance: the weights its world model recorded (learned rows)."""
+    model = case.get("model")
+    return {"world_model_sha256": manifest["world_models"].get(model, {}).get("weights_sha256") if model else None}
 
 
 RUNS = RunKind(
@@ -82,9 +97,9 @@ RUNS = RunKind(
     manifest_schema=MiniGridManifest,
     row_schema=MiniGridRow,
     case_keys=("technique", "model", "seed"),
-    provenance_keys=(),
+    provenance_keys=("world_model_sha256",),
     result_keys=("outcome", "steps", "decision_ms", "actions", "code_version"),
-    expected=lambda manifest, case: {},
+    expected=expected,
 )
 
 

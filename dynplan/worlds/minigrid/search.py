@@ -18,8 +18,10 @@ import numpy as np
 from pydantic import Field
 
 from dynplan.config import Config
-from dynplan.worlds.minigrid.agent import FORWARD, HEADINGS, LEFT, RIGHT, Outcome, Pose, roll
+from dynplan.worlds.minigrid.agent import FORWARD, HEADINGS, LEFT, RIGHT, Pose, roll_chances
+from dynplan.worlds.minigrid.grid import PIXEL_VALUES
 
+BALL, FLOOR = PIXEL_VALUES["ball"], PIXEL_VALUES["floor"]
 #: Ties between first actions go to moving on, then to turning left.
 PREFERENCE = (FORWARD, LEFT, RIGHT)
 
@@ -66,23 +68,34 @@ def distance(poses: np.ndarray, goal: np.ndarray) -> np.ndarray:
 
 def plan_grid(pose: Pose, futures: np.ndarray, goal: np.ndarray, search: GridSearch | None = None) -> GridDecision:
     """The agent's next action from `futures` (F, K + 1, H, W): F futures of the frame now and K after it."""
+    layout = np.where(futures[0, 0] == BALL, FLOOR, futures[0, 0])
+    return plan_chances(pose, layout, (futures == BALL).astype(np.float32), goal, search)
+
+
+def plan_chances(
+    pose: Pose, layout: np.ndarray, balls: np.ndarray, goal: np.ndarray, search: GridSearch | None = None
+) -> GridDecision:
+    """The agent's next action from futures of chances: `balls` (F, K + 1, H, W), each cell's chance of a ball now
+    and at each of K steps in each future, in a room of `layout` (H, W, its walls and goal). A sequence's value in a
+    future is its expected value there, and it dies there with its chance of dying."""
     search = search or GridSearch()
     start = time.perf_counter()
-    k = min(search.horizon, futures.shape[1] - 1)
+    k = min(search.horizon, balls.shape[1] - 1)
     if k < 1:
-        raise ValueError(f"futures hold {futures.shape[1]} frames; the search needs the frame now and one more")
+        raise ValueError(f"futures hold {balls.shape[1]} frames; the search needs the frame now and one more")
     seqs = sequences(k)
-    poses, outcomes = roll(np.array([pose]), seqs, futures[:, : k + 1])
-    span = 2.0 * futures.shape[-1]
-    near = -np.minimum(distance(poses, goal) / span, 1.0)
-    value = np.where(outcomes == Outcome.GOAL, 1.0, np.where(outcomes == Outcome.DEATH, -1.0, near))
+    rolled = roll_chances(pose, seqs, layout, balls[:, : k + 1])
+    near = -np.minimum(distance(rolled.poses, goal) / (2.0 * layout.shape[-1]), 1.0)
+    value = rolled.won - rolled.died + (1.0 - rolled.won - rolled.died) * near
     commit = min(search.commit, k)
     prefixes = seqs[:, :commit] @ (3 ** np.arange(commit)[::-1])
+    futures = np.arange(balls.shape[0])
     values, deaths = np.full(3, -np.inf), np.ones(3)
     for prefix in range(3**commit):
-        best = value[prefixes == prefix].max(axis=0)  # each future's best continuation of the prefix
-        died = float((best == -1.0).mean())
-        score = float(best.mean()) - search.risk * died
+        members = np.flatnonzero(prefixes == prefix)
+        best = members[value[members].argmax(axis=0)]  # each future's best continuation of the prefix
+        died = float(rolled.died[best, futures].mean())
+        score = float(value[best, futures].mean()) - search.risk * died
         first = prefix // 3 ** (commit - 1)
         if score > values[first]:
             values[first], deaths[first] = score, died
