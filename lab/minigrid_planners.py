@@ -4,7 +4,7 @@ the true future, futures sampled from the balls' move rule or from the world mod
 and random actions.
 
 `python -m lab.minigrid_planners --first-seed 3000000 --episodes 200 [--samples 64] [--risk 1.0] [--horizon 5]
-[--commit 5] [--techniques …] [--model-dir DIR]`
+[--commit 5] [--techniques …] [--model-dir DIR] [--learned-samples S]`
 (seeds 3,000,000… are the planner's validation rooms: settings are chosen there).
 """
 
@@ -44,7 +44,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--commit", type=int, default=5)
     parser.add_argument("--techniques", nargs="+", default=list(TECHNIQUES), choices=TECHNIQUES)
     parser.add_argument("--model-dir", default=None, help="folder holding minigrid/{vqvae,pixelcnn}.pt")
+    parser.add_argument("--learned-samples", type=int, default=None, help="a trial: learned10 samples this many")
     args = parser.parse_args(argv)
+    if args.learned_samples:
+        LEARNED_SAMPLES["learned10"] = args.learned_samples
     search = GridSearch(horizon=args.horizon, risk=args.risk, commit=args.commit)
     seeds = range(args.first_seed, args.first_seed + args.episodes)
     model = MiniGridModel(args.model_dir) if any(t in LEARNED_SAMPLES for t in args.techniques) else None

@@ -214,8 +214,12 @@ def test_the_committed_evaluation_fits_its_schema_replays_and_is_the_pages_table
     check_store(store)
     run = Run(store)
     rows, settings = run.current(), run.manifest()["settings"]
-    assert len(rows) == 1000 and settings["samples"] == 64
-    assert [replay_check(row, settings) for row in rows[::20]] == [None] * 50
+    assert len(rows) == 1600 and settings["samples"] == 64
+    assert [replay_check(row, settings) for row in rows[::20]] == [None] * 80
+    learned = [row for row in rows if row["model"] is not None]
+    assert len(learned) == 600 and {row["world_model_sha256"] for row in learned} == {
+        run.manifest()["world_models"]["minigrid"]["weights_sha256"]
+    }
     page = (root / "docs" / "minigrid.md").read_text()
     for line in summarise(rows):
         shown = f"{line['success']:.2f}" + (f" ± {line['se']:.2f}" if line["se"] else "")

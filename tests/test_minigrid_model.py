@@ -152,3 +152,20 @@ def test_the_smoke_pipeline_runs_end_to_end_and_its_rerun_is_a_cache_hit(tmp_pat
     assert stages["vqvae [minigrid]"]["detail"].startswith("cached")
     assert stages["pixelcnn [minigrid]"]["detail"].startswith("cached")
     assert (folder / "report" / "episode.gif").stat().st_mtime_ns == gif  # drawn once for the same weights
+
+
+@pytest.mark.slow
+def test_the_benchmark_times_each_case_at_the_same_decisions():
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run(
+        [sys.executable, "-m", "dynplan.bench", "minigrid", "--json"], cwd=root, capture_output=True, text=True
+    )
+    assert proc.returncode == 0, proc.stderr
+    figures = json.loads(proc.stdout)
+    decisions = {figures[case]["decisions"] for case in ("walk64", "learned10", "learned1", "search_only")}
+    assert len(decisions) == 1 and decisions.pop() > 20
+    assert 0 < figures["learned1"]["median_ms"] < figures["learned10"]["median_ms"]
+    assert figures["learned10"]["ratio_walk64"] > 0 and "load_before" in figures["machine"]

@@ -8,7 +8,7 @@ from pathlib import Path
 from dynplan.world_parts import WorldParts
 from dynplan.worlds.minigrid.commands import Evaluate, Play, Replay
 from dynplan.worlds.minigrid.presets import PRESETS, MiniGridEvalPlan
-from dynplan.worlds.minigrid.report import Stages
+from dynplan.worlds.minigrid.report import Stages, results_section
 from dynplan.worlds.minigrid.results import RUNS
 
 #: MiniGrid's Foxglove layouts: the room with the agent, the room the planner searched, its view, path and steps.
@@ -24,5 +24,6 @@ PARTS = WorldParts(
     benches={"minigrid": "dynplan.worlds.minigrid.bench:bench_minigrid"},
     layout=LAYOUTS / "replay.json",
     studio_layout=LAYOUTS / "replay-studio-1.48.json",
+    results_section=results_section,
     runs=RUNS,
 )

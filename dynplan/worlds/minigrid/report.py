@@ -9,6 +9,7 @@ manifest of their SHA-256 sits beside them), so a cached rerun rewrites the repo
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -88,6 +89,27 @@ def results_table(summary: list[dict], command: str) -> list[str]:
             f"| {r['decision_ms']:g} |"
         )
     return [*lines, ""]
+
+
+#: The command that plays the committed MiniGrid evaluation (every technique over 200 rooms from 1,000,000).
+EVALUATION_COMMAND = "python -m flows.evaluate --world minigrid --workers 1"
+
+#: What a MiniGrid agent is given, and so what its success measures: the section's first paragraph.
+GIVEN = (
+    "Given: the agent's rule (MiniGrid's moves, judged by the paper's collision rule: docs/minigrid.md) and the room "
+    "now. Every step each of the 8 balls walks to a random free cell beside it, so no technique but the oracle knows "
+    "the future: `walk` samples the balls' true move rule, the learned techniques sample a world model that learned "
+    "the rooms from the frames of rooms 0 … 999 (none of these), `stand_still` and `constant_velocity` guess one "
+    "future; all plan with the same search (k = 5)."
+)
+
+
+def results_section(results: str | os.PathLike, run: str = "evaluation") -> list[str]:
+    """The results page's MiniGrid section from the run of the store at `results` (none if the run is not there)."""
+    if not Run(results, run, RUNS).exists():
+        return []
+    summary = summarise(Run(results, run, RUNS).current())
+    return ["## MiniGrid Dynamic-Obstacles", "", GIVEN, "", *results_table(summary, EVALUATION_COMMAND)]
 
 
 class Stages:
