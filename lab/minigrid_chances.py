@@ -4,7 +4,8 @@ Each of S futures is sampled from the balls' true move rule; at each of its step
 chance of a ball given that future's room the step before (the rule's one-step spread, `lab.minigrid_marginal`'s
 `occupancy`), not the 0/1 of the sampled room — the same estimate the learned technique makes from its prior's
 softmax. Set beside `learnedS` on the same rooms, it separates what the estimate costs from what the model costs.
-`python -m lab.minigrid_chances --first-seed 3000000 --episodes 100 --samples 10 [--risk 1.0]`
+`python -m lab.minigrid_chances --first-seed 3000000 --episodes 100 --samples 10 [--risk 1.0] [--commit 5]
+[--horizon 5]`
 """
 
 from __future__ import annotations
@@ -40,8 +41,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--samples", type=int, default=10)
     parser.add_argument("--risk", type=float, default=1.0)
+    parser.add_argument("--commit", type=int, default=5)
+    parser.add_argument("--horizon", type=int, default=5)
     args = parser.parse_args(argv)
-    search, rows = GridSearch(risk=args.risk), []
+    search, rows = GridSearch(horizon=args.horizon, risk=args.risk, commit=min(args.commit, args.horizon)), []
     for seed in range(args.first_seed, args.first_seed + args.episodes):
         room, rng = record_world(MiniGridConfig(), seed), np.random.default_rng(seed)
         pose, outcome, t, ms = AGENT_START_POSE, Outcome.RUNNING, 0, []
@@ -56,7 +59,8 @@ def main(argv: list[str] | None = None) -> dict:
         ended = Outcome.TIMEOUT if outcome == Outcome.RUNNING else outcome
         rows.append({"outcome": ended.name.lower(), "steps": t, "decision_ms": float(np.median(ms))})
     out = summary(rows)
-    print(json.dumps({"walk_chances": out, "samples": args.samples, "risk": args.risk}), flush=True)
+    settings = {"samples": args.samples, "risk": args.risk, "commit": search.commit, "horizon": args.horizon}
+    print(json.dumps({"walk_chances": out, **settings}), flush=True)
     return out
 
 
