@@ -61,7 +61,9 @@ def decide(technique: str, room: MiniGridWorld, t: int, pose: Pose, player: Play
     return plan_chances(pose, layout, belief(technique, room, t, player).balls, room.goal[0], player.search).action
 
 
-def play_episode(technique: str, room: MiniGridWorld, search: GridSearch, samples: int, model=None) -> dict:
+def play_episode(
+    technique: str, room: MiniGridWorld, search: GridSearch, samples: int, model: MiniGridModel | None = None
+) -> dict:
     """One episode of the room by the technique: how it ended, its steps, median decision ms and actions. A learned
     technique plans with `model` (a `MiniGridModel`)."""
     if technique not in TECHNIQUES:
