@@ -23,6 +23,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
+from dynplan.evaluation.store import expected_weights
 from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, RunLengthActions, StrictSchema, WorldModelEntry
 from dynplan.models.checkpoint import weights_sha256
 from dynplan.models.world_model import world_model_paths
@@ -102,12 +103,6 @@ class FreewayRow(StrictSchema):
         return self
 
 
-def expected(manifest: Mapping, case: Mapping) -> dict:
-    """What a manifest asks of a row's provenance: the weights its world model recorded (learned rows)."""
-    model = case.get("model")
-    return {"world_model_sha256": manifest["world_models"].get(model, {}).get("weights_sha256") if model else None}
-
-
 STAGES = ("vqvae", "pixelcnn")
 
 RUNS = RunKind(
@@ -117,7 +112,7 @@ RUNS = RunKind(
     case_keys=("technique", "model", "mode", "seed", "episode", "horizon"),
     provenance_keys=("world_model_sha256",),
     result_keys=("noop_start", "score", "knocks", "steps", "decision_ms", "actions", "code_version"),
-    expected=expected,
+    expected=expected_weights,
 )
 
 

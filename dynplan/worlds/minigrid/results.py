@@ -18,6 +18,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
+from dynplan.evaluation.store import expected_weights
 from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, RunLengthActions, StrictSchema, WorldModelEntry
 from dynplan.world_parts import RunKind
 from dynplan.worlds.minigrid import WORLD
@@ -86,12 +87,6 @@ class MiniGridRow(StrictSchema):
         return self
 
 
-def expected(manifest: Mapping, case: Mapping) -> dict:
-    """What a manifest asks of a row's provenance: the weights its world model recorded (learned rows)."""
-    model = case.get("model")
-    return {"world_model_sha256": manifest["world_models"].get(model, {}).get("weights_sha256") if model else None}
-
-
 RUNS = RunKind(
     world=WORLD.id,
     manifest_schema=MiniGridManifest,
@@ -99,7 +94,7 @@ RUNS = RunKind(
     case_keys=("technique", "model", "seed"),
     provenance_keys=("world_model_sha256",),
     result_keys=("outcome", "steps", "decision_ms", "actions", "code_version"),
-    expected=expected,
+    expected=expected_weights,
 )
 
 
