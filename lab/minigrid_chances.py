@@ -19,7 +19,7 @@ import numpy as np
 from dynplan.worlds.minigrid.agent import AGENT_START_POSE, Outcome, step
 from dynplan.worlds.minigrid.futures import walk
 from dynplan.worlds.minigrid.grid import MiniGridConfig, record_world
-from dynplan.worlds.minigrid.search import BALL, FLOOR, GridSearch, plan_chances
+from dynplan.worlds.minigrid.search import BALL, GridSearch, layout_of, plan_chances
 from lab.minigrid_marginal import occupancy
 from lab.minigrid_planners import summary
 
@@ -50,9 +50,8 @@ def main(argv: list[str] | None = None) -> dict:
         pose, outcome, t, ms = AGENT_START_POSE, Outcome.RUNNING, 0, []
         while outcome == Outcome.RUNNING and t < len(room.frames) - 1:
             start = time.perf_counter()
-            layout = np.where(room.frames[t] == BALL, FLOOR, room.frames[t])
             balls = chances(room.frames, t, search.horizon, args.samples, rng)
-            action = plan_chances(pose, layout, balls, room.goal[0], search).action
+            action = plan_chances(pose, layout_of(room.frames[t]), balls, room.goal[0], search).action
             ms.append((time.perf_counter() - start) * 1e3)
             pose, outcome = step(pose, action, room.frames[t], room.frames[t + 1])
             t += 1

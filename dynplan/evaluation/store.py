@@ -348,7 +348,7 @@ def expected_provenance(manifest: Mapping, case: Mapping) -> dict:
 
 def expected_weights(manifest: Mapping, case: Mapping) -> dict:
     """What a manifest asks of a row's provenance in a world whose rows record only their world model's weights
-    (`RunKind.expected` of Freeway's and MiniGrid's runs): the SHA-256 it records of the case's model, None for a
+    (a `RunKind.expected` a world's runs may use): the SHA-256 it records of the case's model, None for a
     row without one."""
     model = case.get("model")
     return {"world_model_sha256": manifest["world_models"].get(model, {}).get("weights_sha256") if model else None}

@@ -71,3 +71,13 @@ def check_recorded(log: EpisodeLog) -> EpisodeLog:
 def read_recorded_log(path: str | os.PathLike) -> EpisodeLog:
     """`read_episode_log(path)`, checked with `check_recorded`: what a planner replays is what its seed records."""
     return check_recorded(read_episode_log(path))
+
+
+def read_world_recording(path: str | os.PathLike, world_name: str, wanted: str) -> EpisodeLog:
+    """`read_recorded_log(path)`, refused unless it is a recording of world `world_name` as `flows.collect` writes
+    it: else a LogError naming what the log is, then `wanted` (the recording the command plays, and how to make one)."""
+    recorded = read_recorded_log(path)
+    if recorded.entry.name != world_name or recorded.metadata.get("kind") != "world":
+        kind = recorded.metadata.get("kind")
+        raise LogError(path, f"is a {recorded.entry.name} log of kind {kind!r}; {wanted}")
+    return recorded

@@ -20,7 +20,7 @@ import numpy as np
 from dynplan.env.colors import colorize
 from dynplan.logs.format import AgentTrack
 from dynplan.logs.reader import EpisodeLog, LogError
-from dynplan.logs.recording import read_recorded_log
+from dynplan.logs.recording import read_world_recording
 from dynplan.logs.writer import write_episode_log
 from dynplan.planning.forward import ForwardModel
 from dynplan.render import error_image, side_by_side, write_gif
@@ -34,13 +34,8 @@ GIF_STEPS = 150
 
 def replayable(log: str | os.PathLike) -> EpisodeLog:
     """`log`, read and checked: a whole Freeway mode's recording, as `flows.collect` writes it; else a LogError."""
-    recorded = read_recorded_log(log)
-    if recorded.entry.name != "freeway" or recorded.metadata.get("kind") != "world":
-        raise LogError(
-            log,
-            f"is a {recorded.entry.name} log of kind {recorded.metadata.get('kind')!r}; a Freeway "
-            "replay plays a Freeway mode's recording (flows.collect --world freeway)",
-        )
+    wanted = "a Freeway replay plays a Freeway mode's recording (flows.collect --world freeway)"
+    recorded = read_world_recording(log, "freeway", wanted)
     if recorded.n_frames < recorded.config.max_steps:
         raise LogError(
             log,

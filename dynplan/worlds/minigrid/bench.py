@@ -18,9 +18,10 @@ import torch
 
 from dynplan.worlds.minigrid import futures
 from dynplan.worlds.minigrid.agent import AGENT_START_POSE, Outcome, step
+from dynplan.worlds.minigrid.evaluation import Player, decide
 from dynplan.worlds.minigrid.grid import MiniGridConfig, record_world
 from dynplan.worlds.minigrid.imagine import MiniGridModel
-from dynplan.worlds.minigrid.search import BALL, FLOOR, GridSearch, plan_chances, plan_grid
+from dynplan.worlds.minigrid.search import GridSearch, layout_of, plan_chances, plan_grid
 
 #: The acceptance target of a learned decision on 2 cores.
 TARGET_MS = 50.0
@@ -53,36 +54,25 @@ def _timed(decide, places: list[tuple]) -> dict[str, float]:
 def bench_minigrid() -> dict[str, dict[str, float]]:
     """Time each case's decisions at the same places; the learned ones against `TARGET_MS` and the walk's."""
     load, threads = os.getloadavg()[0], torch.get_num_threads()
-    model, search, places = MiniGridModel(), GridSearch(), _places()
-    rng = np.random.default_rng(0)
+    player, places = Player(GridSearch(), 64, np.random.default_rng(0), MiniGridModel()), _places()
 
-    def learned(samples: int):
-        def decide(room, t, pose) -> int:
-            balls = model.imagine(room.frames[: t + 1], search.horizon, samples).balls
-            layout = np.where(room.frames[t] == BALL, FLOOR, room.frames[t])
-            return plan_chances(pose, layout, balls, room.goal[0], search).action
+    def technique(name: str):
+        return lambda room, t, pose: decide(name, room, t, pose, player)
 
-        return decide
+    def search_only(room, t, pose) -> int:
+        balls = np.full((10, player.search.horizon + 1, *room.frames.shape[1:]), 0.1, np.float32)
+        return plan_chances(pose, layout_of(room.frames[t]), balls, room.goal[0], player.search).action
 
-    def searched(balls: np.ndarray):
-        def decide(room, t, pose) -> int:
-            layout = np.where(room.frames[t] == BALL, FLOOR, room.frames[t])
-            return plan_chances(pose, layout, balls, room.goal[0], search).action
-
-        return decide
-
-    def walk(room, t, pose) -> int:
-        return plan_grid(pose, futures.walk(room.frames, t, search.horizon, 64, rng), room.goal[0], search).action
-
-    learned(10)(*places[0])  # compiles the generation kernel and loads the weights before any timing
-    results = {"walk64": _timed(walk, places)}
+    technique("learned10")(*places[0])  # compiles the generation kernel and loads the weights before any timing
+    results = {"walk64": _timed(technique("walk"), places)}
     for count in (1, threads):
         torch.set_num_threads(count)
         for samples in (10, 5, 1):
             case = f"learned{samples}" + ("_1thread" if count == 1 and threads > 1 else "")
-            results[case] = {**_timed(learned(samples), places), "threads": count, "target_ms": TARGET_MS}
+            timed = _timed(technique(f"learned{samples}"), places)
+            results[case] = {**timed, "threads": count, "target_ms": TARGET_MS}
     torch.set_num_threads(threads)
-    results["search_only"] = _timed(searched(np.full((10, search.horizon + 1, 16, 16), 0.1, np.float32)), places)
+    results["search_only"] = _timed(search_only, places)
     for samples in (10, 5, 1):
         results[f"learned{samples}"]["ratio_walk64"] = round(
             results[f"learned{samples}"]["median_ms"] / results["walk64"]["median_ms"], 2

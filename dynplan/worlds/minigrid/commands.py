@@ -16,8 +16,8 @@ from dynplan.config import Config
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.provenance import world_model_entry
 from dynplan.evaluation.store import Run, check_run_name
-from dynplan.logs.reader import EpisodeLog, LogError
-from dynplan.logs.recording import read_recorded_log
+from dynplan.logs.reader import EpisodeLog
+from dynplan.logs.recording import read_world_recording
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.render import write_gif
@@ -225,14 +225,8 @@ def default_replay_path(log: str | os.PathLike, technique: str) -> Path:
 def replayable(log: str | os.PathLike) -> EpisodeLog:
     """`log`, read and checked: a MiniGrid room's recording, as `flows.collect --world minigrid` writes it; else a
     LogError."""
-    recorded = read_recorded_log(log)
-    if recorded.entry.name != "minigrid" or recorded.metadata.get("kind") != "world":
-        raise LogError(
-            log,
-            f"is a {recorded.entry.name} log of kind {recorded.metadata.get('kind')!r}; a MiniGrid replay plays a "
-            "room's recording (flows.collect --world minigrid)",
-        )
-    return recorded
+    wanted = "a MiniGrid replay plays a room's recording (flows.collect --world minigrid)"
+    return read_world_recording(log, "minigrid", wanted)
 
 
 class Replay:

@@ -22,7 +22,7 @@ from dynplan.worlds.minigrid.grid import MiniGridConfig, MiniGridWorld, record_w
 from dynplan.worlds.minigrid.imagine import Imagined, MiniGridModel
 from dynplan.worlds.minigrid.models import NAME
 from dynplan.worlds.minigrid.results import LEARNED_SAMPLES, RUNS, TECHNIQUE_NAMES, encode_actions
-from dynplan.worlds.minigrid.search import BALL, FLOOR, GridSearch, plan_chances
+from dynplan.worlds.minigrid.search import BALL, GridSearch, layout_of, plan_chances
 
 TECHNIQUES = TECHNIQUE_NAMES
 
@@ -57,8 +57,8 @@ def decide(technique: str, room: MiniGridWorld, t: int, pose: Pose, player: Play
     """The technique's action at step t from `pose`: planned against its `belief`, or random."""
     if technique == "random":
         return int(player.rng.integers(0, 3))
-    layout = np.where(room.frames[t] == BALL, FLOOR, room.frames[t])
-    return plan_chances(pose, layout, belief(technique, room, t, player).balls, room.goal[0], player.search).action
+    balls = belief(technique, room, t, player).balls
+    return plan_chances(pose, layout_of(room.frames[t]), balls, room.goal[0], player.search).action
 
 
 def play_episode(

@@ -24,7 +24,7 @@ from dynplan.worlds.minigrid.evaluation import TECHNIQUES, Player, belief
 from dynplan.worlds.minigrid.grid import MiniGridWorld
 from dynplan.worlds.minigrid.imagine import Imagined, MiniGridModel
 from dynplan.worlds.minigrid.results import LEARNED_SAMPLES
-from dynplan.worlds.minigrid.search import BALL, FLOOR, GridSearch, plan_chances
+from dynplan.worlds.minigrid.search import GridSearch, layout_of, plan_chances
 
 #: The horizons the K key cycles through.
 HORIZONS = (3, 5, 6)
@@ -83,9 +83,7 @@ class MiniGridPlay:
 
     def planner_action(self) -> tuple[int, float]:
         start = time.perf_counter()
-        frame = self.room.frames[self.t]
-        layout = np.where(frame == BALL, FLOOR, frame)
-        ahead = self.look_ahead()
+        ahead, layout = self.look_ahead(), layout_of(self.room.frames[self.t])
         action = plan_chances(self.poses[-1], layout, ahead.balls, self.room.goal[0], self.search).action
         self.imagined[self.t] = ahead.rooms[0, 1:]
         return action, (time.perf_counter() - start) * 1e3

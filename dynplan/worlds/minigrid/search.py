@@ -66,10 +66,14 @@ def distance(poses: np.ndarray, goal: np.ndarray) -> np.ndarray:
     return np.abs(offset).sum(axis=-1) + turns * (np.abs(offset).sum(axis=-1) > 0)
 
 
+def layout_of(frame: np.ndarray) -> np.ndarray:
+    """The room's walls and goal, which do not move: `frame` (H, W) with its balls taken off."""
+    return np.where(frame == BALL, FLOOR, frame)
+
+
 def plan_grid(pose: Pose, futures: np.ndarray, goal: np.ndarray, search: GridSearch | None = None) -> GridDecision:
     """The agent's next action from `futures` (F, K + 1, H, W): F futures of the frame now and K after it."""
-    layout = np.where(futures[0, 0] == BALL, FLOOR, futures[0, 0])
-    return plan_chances(pose, layout, (futures == BALL).astype(np.float32), goal, search)
+    return plan_chances(pose, layout_of(futures[0, 0]), (futures == BALL).astype(np.float32), goal, search)
 
 
 def plan_chances(
