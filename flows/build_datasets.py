@@ -19,18 +19,15 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from prefect import flow, task, unmapped
-from prefect.cache_policies import NO_CACHE
-from prefect.futures import as_completed
-
-from dynplan.cli import CommandParser, add_debug_option
+from dynplan.cli import CommandParser
 from dynplan.data.build import build_frame_store
 from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem, store_world
 from dynplan.data.verify import verify_store
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world_names
-from flows.cli import run
+from flows.cli import add_console_options, run, temporary_api
+from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, dask_scheduler, task_runner
 
 
@@ -51,6 +48,9 @@ def build_datasets(
 ) -> dict:
     """Append every new log of the world `world_name` in `log_dir` to the frames store `out`."""
     logs = [str(p) for p in list_logs(log_dir)]
+    from prefect import unmapped
+    from prefect.futures import as_completed
+
     futures = inspect_log_task.map(logs, world_name=unmapped(world_name))
     infos = [f.result() for f in progress(as_completed(futures), total=len(futures), description="inspect logs")]
     with dask_scheduler(dask_address):
@@ -119,7 +119,7 @@ def _parser() -> CommandParser:
     )
     add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
-    add_debug_option(parser)
+    add_console_options(parser)
     return parser
 
 
@@ -148,9 +148,10 @@ def main(argv: list[str] | None = None) -> dict:
     not_logs = sorted(p.name for p in Path(args.log_dir).glob("*.mcap") if not p.is_file())
     for name in not_logs:
         print(f"python -m flows.build_datasets: skipped {Path(args.log_dir) / name}: not a file", file=sys.stderr)
-    report = build_datasets.with_options(task_runner=task_runner(address))(
-        log_dir=args.log_dir, out=args.out, dask_address=address, world_name=args.world or _store_world(args.out)
-    )
+    with temporary_api():
+        report = build_datasets.with_options(task_runner=task_runner(address))(
+            log_dir=args.log_dir, out=args.out, dask_address=address, world_name=args.world or _store_world(args.out)
+        )
     if args.json:
         print(json.dumps(report))
     if report["failed"]:

@@ -1,5 +1,6 @@
-"""What every `python -m flows.…` command shares: a temporary Prefect API that dies with the command, and one line,
-not a traceback, for an unexpected error (unless `--debug`).
+"""What every `python -m flows.…` command shares: a temporary Prefect API that dies with the command, started only
+when a flow is about to run (after the arguments are parsed and checked: `--help` and a usage error answer before
+Prefect is loaded), and one line, not a traceback, for an unexpected error (unless `--debug`).
 
 Without `PREFECT_API_URL`, Prefect starts a temporary API server of its own, which outlives a command killed with
 SIGKILL and may print shutdown errors when it is stopped before Prefect's log and event workers have flushed.
@@ -9,6 +10,7 @@ parent-death signal), points Prefect at it, drains Prefect's workers and only th
 
 from __future__ import annotations
 
+import argparse
 import logging
 import os
 import socket
@@ -21,11 +23,7 @@ from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO
 
-import httpx
-import prefect
-from prefect.settings import PREFECT_API_URL, PREFECT_UI_URL, get_current_settings, temporary_settings
-
-from dynplan.cli import die_with_parent, run_command
+from dynplan.cli import add_debug_option, die_with_parent, run_command
 
 #: Seconds to wait for the temporary server's health check.
 STARTUP_TIMEOUT_S = 120.0
@@ -55,6 +53,8 @@ def _last_line(log: IO[bytes]) -> str:
 
 def _wait_until_healthy(server: subprocess.Popen, url: str, log: IO[bytes]) -> None:
     """Wait for the server's health check; a server that exits or stays silent is a RuntimeError saying so."""
+    import httpx
+
     deadline = time.monotonic() + STARTUP_TIMEOUT_S
     with httpx.Client() as client:
         while True:
@@ -79,7 +79,11 @@ def temporary_api() -> Iterator[str | None]:
     """Within the block, Prefect talks to `PREFECT_API_URL` if set, else to a temporary server of this process's
     own, stopped after the block (and signalled by the kernel if this process dies first). Yields the API's URL.
     The server's own output goes to a temporary file (its shutdown when the command is interrupted is no concern of
-    the terminal's); its last line is told if it fails to start."""
+    the terminal's); its last line is told if it fails to start. The terminal shows what `_Console` lets through."""
+    import prefect
+    from prefect.settings import PREFECT_API_URL, PREFECT_UI_URL, get_current_settings, temporary_settings
+
+    _quiet_console()
     if PREFECT_API_URL.value():
         yield PREFECT_API_URL.value()
         return
@@ -129,35 +133,52 @@ def temporary_api() -> Iterator[str | None]:
                 server.wait()
 
 
-class _QuietFailures(logging.Filter):
-    """Keeps a failed task's or flow's report off the terminal (Prefect still sends it to its API): the command
-    says what went wrong in one line."""
+#: The start of Prefect's own messages of a run's life (not the flows' prints): shown with `--verbose`.
+LIFECYCLE = ("Beginning flow run", "Beginning subflow run", "Finished in state", "Created task run", "View at")
+
+
+class _Console(logging.Filter):
+    """Keeps off the terminal (Prefect still sends all to its API) a failed task's or flow's report, unless
+    `--debug` (the command says what went wrong in one line), and Prefect's messages of each run's life, unless
+    `--verbose` (each stage prints its own line)."""
+
+    def __init__(self, debug: bool, verbose: bool) -> None:
+        super().__init__()
+        self.debug, self.verbose = debug, verbose
 
     def filter(self, record: logging.LogRecord) -> bool:
-        failed = record.levelno >= logging.ERROR or "Finished in state Failed" in record.getMessage()
-        return not (failed and record.name.startswith(("prefect.task_runs", "prefect.flow_runs")))
+        if not record.name.startswith(("prefect.task_runs", "prefect.flow_runs")):
+            return True
+        message = record.getMessage()
+        failed = record.levelno >= logging.ERROR or "Finished in state Failed" in message
+        if failed:
+            return self.debug
+        return self.verbose or not message.startswith(LIFECYCLE)
 
 
-def _quiet_prefect_failures() -> None:
-    """Add `_QuietFailures` to every terminal handler of Prefect's loggers and the root logger (which Prefect's
-    logging configuration, read on importing `prefect.main`, gives its console handler)."""
+def _quiet_console() -> None:
+    """Add `_Console` (as `--debug` and `--verbose` in the command line ask) to every terminal handler of Prefect's
+    loggers and the root logger (which Prefect's logging configuration, read on importing `prefect.main`, gives its
+    console handler)."""
     import prefect.main  # noqa: F401  (configures Prefect's logging, once)
 
+    argv = sys.argv[1:]
     loggers = [logging.getLogger(name) for name in logging.root.manager.loggerDict if name.startswith("prefect")]
     for logger in [logging.root, *loggers]:
         for handler in logger.handlers:
-            if isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler):
-                handler.addFilter(_QuietFailures())
+            terminal = isinstance(handler, logging.StreamHandler) and not isinstance(handler, logging.FileHandler)
+            if terminal and not any(isinstance(f, _Console) for f in handler.filters):
+                handler.addFilter(_Console("--debug" in argv, "--verbose" in argv))
+
+
+def add_console_options(parser: argparse.ArgumentParser) -> None:
+    """`--debug` (the traceback of an unexpected error, and Prefect's reports of failed runs) and `--verbose`
+    (Prefect's line for each run's start and end)."""
+    add_debug_option(parser)
+    parser.add_argument("--verbose", action="store_true", help="also print Prefect's line for each run's start and end")
 
 
 def run(main: Callable[[list[str] | None], object], prog: str) -> None:
-    """Run a command's `main` against `temporary_api` with `dynplan.cli.run_command`: an error is one line on stderr
-    (the traceback with `--debug`), an interrupt "interrupted" and exit status 130."""
-    if "--debug" not in sys.argv[1:]:
-        _quiet_prefect_failures()
-
-    def with_api(argv: list[str] | None) -> object:
-        with temporary_api():
-            return main(argv)
-
-    run_command(with_api, prog)
+    """Run a command's `main` with `dynplan.cli.run_command`: an error is one line on stderr (the traceback with
+    `--debug`), an interrupt "interrupted" and exit status 130. `main` runs its flows within `temporary_api`."""
+    run_command(main, prog)

@@ -10,18 +10,15 @@ from __future__ import annotations
 import json
 from collections import Counter
 
-from prefect import flow, task, unmapped
-from prefect.cache_policies import NO_CACHE
-from prefect.futures import as_completed
-
-from dynplan.cli import CommandParser, add_debug_option, bounded
+from dynplan.cli import CommandParser, bounded
 from dynplan.config import field_help
 from dynplan.data.collect import CollectPlan, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world, world_names
-from flows.cli import run
+from flows.cli import add_console_options, run, temporary_api
+from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 
 #: Episodes a collection records unless told: 10, or fewer where the world has fewer from the first seed on.
@@ -51,6 +48,9 @@ def collect_episodes(
         entry.check_seed(seed_)
     for leftover in stale_temporaries(out):
         leftover.unlink(missing_ok=True)
+    from prefect import unmapped
+    from prefect.futures import as_completed
+
     seeds = plan.seeds
     futures = record_episode_task.map(
         out,
@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     add_dask_option(parser)
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
-    add_debug_option(parser)
+    add_console_options(parser)
     args = parser.parse_args(argv)
     try:
         config = _recording(args)
@@ -115,9 +115,10 @@ def main(argv: list[str] | None = None) -> dict:
     except ValueError as error:
         parser.error(str(error))
     runner = task_runner(address)
-    summary = collect_episodes.with_options(task_runner=runner)(
-        out=args.out, episodes=plan.episodes, seed=args.seed, config=config, world_name=args.world
-    )
+    with temporary_api():
+        summary = collect_episodes.with_options(task_runner=runner)(
+            out=args.out, episodes=plan.episodes, seed=args.seed, config=config, world_name=args.world
+        )
     if args.json:
         print(json.dumps(summary))
     return summary

@@ -29,10 +29,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from prefect import flow, task
-from prefect.cache_policies import NO_CACHE
-
-from dynplan.cli import CommandParser, add_debug_option
+from dynplan.cli import CommandParser
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
 from dynplan.files import atomic_path, write_bytes_atomic
@@ -49,8 +46,9 @@ from dynplan.pipeline.report import (
 from dynplan.world import DEFAULT_WORLD, world, world_names
 from flows.artifacts import publish_report
 from flows.build_datasets import build_datasets
-from flows.cli import run
+from flows.cli import add_console_options, run, temporary_api
 from flows.collect import collect_episodes
+from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 from flows.train import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
 from flows.worlds import evaluate_world
@@ -147,6 +145,12 @@ def _evaluate_world(plan: PipelinePreset, work: Path, runner, command: str) -> t
     return str(work / "results"), f"{len(requests)} runs, {played} summary rows"
 
 
+def _said(stage: dict) -> dict:
+    """`stage` (name, wall time, detail), once its line is printed."""
+    print(f"stage {stage['name']}: {stage['detail']} ({stage['wall_s']:.1f} s)")
+    return stage
+
+
 @flow(name="collect-train-eval", log_prints=True)
 def collect_train_eval(
     preset: str = "quick",
@@ -168,7 +172,7 @@ def collect_train_eval(
     def timed(name: str, call, detail=lambda result: ""):
         start = time.perf_counter()
         result = call()
-        stages.append({"name": name, "wall_s": time.perf_counter() - start, "detail": detail(result)})
+        stages.append(_said({"name": name, "wall_s": time.perf_counter() - start, "detail": detail(result)}))
         return result
 
     timed(
@@ -176,17 +180,20 @@ def collect_train_eval(
         lambda: collect_episodes.with_options(task_runner=runner)(
             out=str(work / "logs"), episodes=plan.train_episodes, seed=0, world_name=plan.world
         ),
-        lambda r: f"{len(r['seeds'])} episodes, {r['written'] + r['rewritten']} recorded now",
+        lambda r: (
+            f"{len(r['seeds'])} episodes, {r['written'] + r['rewritten']} recorded now"
+            + ("" if r["written"] + r["rewritten"] else "; cached")
+        ),
     )
     timed(
         "build datasets",
         lambda: build_datasets.with_options(task_runner=runner)(
             log_dir=str(work / "logs"), out=store, dask_address=dask_address, world_name=plan.world
         ),
-        lambda r: f"{r['episodes']} episodes: {len(r['added'])} added",
+        lambda r: f"{r['episodes']} episodes: {len(r['added'])} added" + ("" if r["added"] else "; cached"),
     )
     for model in plan.models:
-        stages += world_model_task(plan.model_dump(mode="json"), model, store, str(work))
+        stages += [_said(r) for r in world_model_task(plan.model_dump(mode="json"), model, store, str(work))]
     played = timed("evaluate", lambda: _evaluate_world(plan, work, runner, command), lambda r: r[1])
     report = report_task(plan.model_dump(mode="json"), str(work), played[0], command, stages)
     print(f"report: {report}")
@@ -208,7 +215,7 @@ def main(argv: list[str] | None = None) -> str:
         "--out", type=PathArgument(PathKind.OUTPUT_FOLDER), default="datasets", help="output folder (default: datasets)"
     )
     add_dask_option(parser)
-    add_debug_option(parser)
+    add_console_options(parser)
     args = parser.parse_args(argv)
     try:
         check_output(args.out, "--out", "folder")
@@ -217,9 +224,10 @@ def main(argv: list[str] | None = None) -> str:
     except (ConfigError, ValueError) as error:
         parser.error(str(error))
     command = shlex.join(["python", "-m", "flows.collect_train_eval", *(sys.argv[1:] if argv is None else argv)])
-    report = collect_train_eval(
-        preset=args.preset, out=args.out, dask_address=address, command=command, world=args.world
-    )
+    with temporary_api():
+        report = collect_train_eval(
+            preset=args.preset, out=args.out, dask_address=address, command=command, world=args.world
+        )
     print(json.dumps({"report": report}))
     return report
 

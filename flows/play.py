@@ -11,13 +11,18 @@ import os
 import sys
 from collections.abc import Sequence
 
-from dynplan.cli import run_command
+from dynplan.cli import CommandParser, run_command
 from dynplan.world_parts import PlayState
-from flows.worlds import play_main, world_command
+from flows.window import NO_DISPLAY, has_display
 
 
 def main(argv: Sequence[str] | None = None) -> PlayState:
     argv = sys.argv[1:] if argv is None else list(argv)
+    headless = any(a == "--script" or a.startswith("--script=") for a in argv)
+    if not (has_display() or headless or "-h" in argv or "--help" in argv):
+        CommandParser(prog="python -m flows.play").error(NO_DISPLAY)  # before any world loads: at once
+    from flows.worlds import play_main, world_command
+
     return play_main(*world_command("python -m flows.play", argv, lambda parts: parts.play), argv)
 
 

@@ -9,8 +9,6 @@ import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-from prefect.task_runners import ThreadPoolTaskRunner
-
 #: Environment variable naming a Dask scheduler (e.g. tcp://10.0.0.5:8786) when --dask-address is not given.
 DASK_ADDRESS_ENV = "DYNPLAN_DASK_ADDRESS"
 
@@ -26,6 +24,8 @@ def task_runner(address: str | None, workers: int | None = None):
         from prefect_dask import DaskTaskRunner
 
         return DaskTaskRunner(address=address)
+    from prefect.task_runners import ThreadPoolTaskRunner
+
     return ThreadPoolTaskRunner(max_workers=workers or os.cpu_count() or 1)
 
 

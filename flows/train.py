@@ -13,13 +13,11 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import zarr
-from prefect import flow, task
-from prefect.cache_policies import NO_CACHE
-from prefect.context import TaskRunContext
 
-from dynplan.cli import CommandParser, add_debug_option, bounded
+from dynplan.cli import CommandParser, bounded
 from dynplan.config import ConfigError, field_help
 from dynplan.data.metadata import metadata_problem
 from dynplan.data.store import store_problem, store_world
@@ -29,6 +27,7 @@ from dynplan.models.pixelcnn import PixelCNNConfig
 from dynplan.models.registry import default_model, models_of, world_model_names, world_model_spec
 from dynplan.models.vqvae import VQVAEConfig
 from dynplan.paths import PathArgument, PathKind, check_input, check_output
+from dynplan.progress import StepBar
 from dynplan.training.codes import build_codes
 from dynplan.training.loop import TrainBudget
 from dynplan.training.pixelcnn import train_pixelcnn
@@ -37,7 +36,11 @@ from dynplan.training.tensorboard import INSTALL, MissingExtra, check_available
 from dynplan.training.vqvae import train_vqvae
 from dynplan.world import DEFAULT_WORLD, world_names
 from flows.artifacts import ProgressArtifact
-from flows.cli import run
+from flows.cli import add_console_options, run, temporary_api
+from flows.deferred import NO_CACHE, flow, task
+
+if TYPE_CHECKING:
+    from prefect.context import TaskRunContext
 
 
 def _finished_key(run_dir: Path, kind: str, epochs: int) -> str | None:
@@ -61,13 +64,15 @@ def _pixelcnn_key(context: TaskRunContext, p: dict) -> str | None:
     return _finished_key(run_dir, "pixelcnn", p["budget"]["epochs"])
 
 
-def _show(keys: tuple[str, ...], run_dir: Path, epochs: int):
-    """Each finished epoch: its figures printed (`keys`) and the task's progress artifact moved on."""
+def _show(run_dir: Path, epochs: int):
+    """Each finished epoch: the console's bar and the task's progress artifact moved on, the bar saying the epoch's
+    loss (its every figure is in the run folder's metrics.csv)."""
     done = ProgressArtifact(f"epochs of {run_dir.name}", epochs)
+    bar = StepBar(epochs, f"epochs of {run_dir.name}")
 
     def show(row: dict) -> None:
-        print(json.dumps({k: row[k] for k in keys}))
         done.update(int(row["epoch"]))
+        bar.update(int(row["epoch"]), f"(loss {row['loss']:.4f})")
 
     return show
 
@@ -80,9 +85,7 @@ def _board(tensorboard: str | None, run_dir: Path) -> Path | None:
 @task(name="train-vqvae", cache_key_fn=_vqvae_key, persist_result=True)
 def train_vqvae_task(store: str, out: str, config: dict, budget: dict, tensorboard: str | None = None) -> str:
     run_dir = vqvae_run_dir(store, out, config, budget)
-    shown = _show(
-        ("epoch", "loss", "val_fn_rate", "val_fp_rate", "val_goal_exact", "val_codes_used"), run_dir, budget["epochs"]
-    )
+    shown = _show(run_dir, budget["epochs"])
     return str(
         train_vqvae(
             store,
@@ -100,11 +103,7 @@ def train_pixelcnn_task(
     store: str, codes: str, out: str, config: dict, budget: dict, tensorboard: str | None = None
 ) -> str:
     run_dir = pixelcnn_run_dir(store, codes, out, config, budget)
-    shown = _show(
-        ("epoch", "loss", "val_accuracy", "val_next_fn_rate", "val_next_fp_rate", "val_next_goal_exact"),
-        run_dir,
-        budget["epochs"],
-    )
+    shown = _show(run_dir, budget["epochs"])
     path = train_pixelcnn(
         store,
         codes,
@@ -247,7 +246,7 @@ def _parser() -> CommandParser:
         metavar="DIR",
         help=f"also write TensorBoard scalars and images to DIR/<run folder>/ (needs the tensorboard extra: {INSTALL})",
     )
-    add_debug_option(parser)
+    add_console_options(parser)
     return parser
 
 
@@ -324,9 +323,10 @@ def main(argv: list[str] | None = None) -> str:
         "overrides": overrides,
         "tensorboard": args.tensorboard,
     }
-    if args.stage == "vqvae":
-        return train_vqvae_flow(**common)
-    return train_pixelcnn_flow(**common, codes=args.codes or f"codes_{args.model}")
+    with temporary_api():
+        if args.stage == "vqvae":
+            return train_vqvae_flow(**common)
+        return train_pixelcnn_flow(**common, codes=args.codes or f"codes_{args.model}")
 
 
 if __name__ == "__main__":

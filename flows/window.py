@@ -108,15 +108,23 @@ def checked_window_options(
     return script
 
 
+NO_DISPLAY = (
+    "no display to open the window on (DISPLAY and WAYLAND_DISPLAY are unset): run it on a desktop, or headless "
+    "with --script KEYS (e.g. --script p,space,escape) and --screenshot or --record to keep what it played"
+)
+
+
+def has_display() -> bool:
+    """Whether a window can open: not Linux, or one of `DISPLAY_VARIABLES` set."""
+    return not sys.platform.startswith("linux") or any(os.environ.get(name) for name in DISPLAY_VARIABLES)
+
+
 def _check_display(parser: argparse.ArgumentParser, script: list[str] | None) -> None:
-    """On Linux without a display (none of `DISPLAY_VARIABLES` set), a headless script plays on SDL's dummy video
-    driver; without a script the window has nowhere to open, which is one line, not a wait."""
-    if not sys.platform.startswith("linux") or any(os.environ.get(name) for name in DISPLAY_VARIABLES):
+    """On Linux without a display, a headless script plays on SDL's dummy video driver; without a script the window
+    has nowhere to open, which is one line (`NO_DISPLAY`), not a wait."""
+    if has_display():
         return
     if script is not None:
         os.environ["SDL_VIDEODRIVER"] = "dummy"
         return
-    parser.error(
-        "no display to open the window on (DISPLAY and WAYLAND_DISPLAY are unset): run it on a desktop, or headless "
-        "with --script KEYS (e.g. --script p,space,escape) and --screenshot or --record to keep what it played"
-    )
+    parser.error(NO_DISPLAY)

@@ -16,19 +16,16 @@ import sys
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-import torch
-from prefect import flow, task
-from prefect.cache_policies import NO_CACHE
-from prefect.futures import as_completed
-
-from dynplan.cli import Bounded, CommandParser, add_debug_option, named_world
+from dynplan.cli import Bounded, CommandParser, named_world
 from dynplan.files import atomic_path
 from dynplan.paths import PathArgument, PathKind
 from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world, world_names
 from dynplan.world_parts import EvaluateCommand, PlayCommand, PlayState, ReplayCommand, WorldParts
 from flows.artifacts import ProgressArtifact, artifact_key, publish_summary
+from flows.cli import add_console_options, temporary_api
 from flows.collect import collect_episodes
+from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 from flows.window import PanelWindow, add_window_options, checked_window_options
 
@@ -98,7 +95,10 @@ def evaluate_world(world_name: str, request: dict, command: str, artifacts: str 
         collect_episodes(recordings.folder, recordings.episodes, recordings.first_seed, world_name=world_name)
     jobs = own.start(checked, command)
     total = sum(job["episodes"] for job in jobs)
-    print(f"{total} episodes to play into {world_name} run {checked.run!r}, in {len(jobs)} batches, one task each")
+    if total:
+        print(f"{total} episodes to play into {world_name} run {checked.run!r}, in {len(jobs)} batches, one task each")
+    from prefect.futures import as_completed
+
     futures = [world_job_task.submit(world_name, request, job) for job in jobs]
     played = ProgressArtifact(f"episodes played into run {checked.run!r}", total)
     for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} batches"):
@@ -122,7 +122,7 @@ def evaluate_main(name: str, own: EvaluateCommand, argv: Sequence[str]) -> list[
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     check = "play nothing: check each row of the run against what it records (exit 1 naming misfits)"
     parser.add_argument("--check", action="store_true", help=check)
-    add_debug_option(parser)
+    add_console_options(parser)
     args = parsed(parser, name, argv)
     try:
         address = checked_dask_address(args.dask_address)
@@ -132,12 +132,15 @@ def evaluate_main(name: str, own: EvaluateCommand, argv: Sequence[str]) -> list[
     if args.check:
         return _check(own, request)
     if not address:  # the local pool's batches share the cores; more threads only contend
+        import torch
+
         cores = os.cpu_count() or 1
         torch.set_num_threads(max(1, cores // (args.workers or cores)))
     command = shlex.join(["python", "-m", "flows.evaluate", *argv])
-    summary = evaluate_world.with_options(task_runner=task_runner(address, args.workers))(
-        world_name=name, request=request.model_dump(mode="json"), command=command
-    )
+    with temporary_api():
+        summary = evaluate_world.with_options(task_runner=task_runner(address, args.workers))(
+            world_name=name, request=request.model_dump(mode="json"), command=command
+        )
     if args.json:
         print(json.dumps(summary))
     return summary
@@ -169,10 +172,11 @@ def replay_main(name: str, own: ReplayCommand, argv: Sequence[str]) -> dict:
     parser = parser_for("python -m flows.replay", name, own)
     parser.add_argument("log", type=PathArgument(PathKind.LOG), help=f"a {name} log (.mcap) from flows.collect")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
-    add_debug_option(parser)
+    add_console_options(parser)
     args = parsed(parser, name, argv)
     request = _request(parser, own, args)
-    result = replay_world(world_name=name, request=request.model_dump(mode="json"))
+    with temporary_api():
+        result = replay_world(world_name=name, request=request.model_dump(mode="json"))
     if args.json:
         print(json.dumps(result))
     return result

@@ -76,3 +76,44 @@ def test_every_command_offers_debug(module):
     proc = subprocess.run([sys.executable, "-m", f"flows.{module}", "--help"], cwd=ROOT, capture_output=True,
                           text=True, timeout=120)  # fmt: skip
     assert proc.returncode == 0 and "--debug" in proc.stdout
+
+
+#: What a command must not load before it answers `--help`, a usage error or a missing display: a newcomer waits
+#: for none of it.
+HEAVY = ("prefect", "torch", "dask", "xarray", "zarr", "numba")
+#: Runs the command `sys.argv[1]` with the rest as its arguments, then prints its exit status and the HEAVY modules
+#: it loaded.
+PROBE = """
+import runpy, sys
+module = sys.argv.pop(1)
+try:
+    runpy.run_module(module, run_name="__main__")
+except SystemExit as exit:
+    print("status", exit.code)
+print(sorted(m for m in {heavy!r} if m in sys.modules))
+"""
+
+
+def probe(*argv: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    code = PROBE.format(heavy=HEAVY)
+    return subprocess.run([sys.executable, "-c", code, *argv], cwd=ROOT, env=env, capture_output=True, text=True,
+                          timeout=120)  # fmt: skip
+
+
+@pytest.mark.parametrize("argv", [("flows.collect", "--help"), ("flows.collect", "--episodes", "0")])
+def test_collect_answers_before_loading_prefect_or_torch(argv):
+    proc = probe(*argv)
+    assert proc.stdout.splitlines()[-2:] == [f"status {0 if '--help' in argv else 2}", "[]"], proc.stdout[-500:]
+
+
+def test_a_usage_error_is_one_line_naming_the_bad_value():
+    proc = subprocess.run([sys.executable, "-m", "flows.collect", "--episodes", "0"], cwd=ROOT, env=without_api(),
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0, proc.stderr
+    assert "--episodes=0 is invalid" in proc.stderr
+
+
+def test_play_without_a_display_says_so_in_one_line_before_loading_a_world():
+    proc = probe("flows.play", env={k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")})
+    assert proc.stdout.splitlines() == ["status 2", "[]"], proc.stdout + proc.stderr
+    assert proc.stderr.strip().count("\n") == 0 and "no display" in proc.stderr, proc.stderr

@@ -1,6 +1,6 @@
 """Every snippet of README.md runs as written: its Python blocks, and its shell blocks other than set-up and servers
-(which CI, the deployment test and the viewer's browser test run), in a temporary folder so the checkout stays
-clean."""
+(which CI, the deployment test and the viewer's browser test run) in a fresh clone of the checkout, which they must
+leave clean: no README command writes a tracked file or leaves an output git does not ignore."""
 
 import re
 import subprocess
@@ -37,11 +37,17 @@ def test_python_snippet_runs(index, tmp_path):
     "index", [i for i, (lang, body) in enumerate(BLOCKS) if lang == "bash" and not any(s in body for s in NOT_HERE)]
 )
 def test_shell_snippet_runs(index, tmp_path):
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout: nothing to clone")
+    clone = tmp_path / "clone"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True, timeout=300)
     for line in BLOCKS[index][1].splitlines():
         command = line.split("#", 1)[0].strip()
         if not command:
             continue
         assert command.startswith(".venv/bin/python -m "), command
         argv = [sys.executable, *command.removeprefix(".venv/bin/python").split()]
-        proc = subprocess.run(argv, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        proc = subprocess.run(argv, cwd=clone, capture_output=True, text=True, timeout=600)
         assert proc.returncode == 0, f"{command}\n{proc.stderr[-3000:]}"
+    status = subprocess.run(["git", "status", "--porcelain"], cwd=clone, capture_output=True, text=True, check=True)
+    assert status.stdout == "", f"the README's commands left the checkout changed:\n{status.stdout}"

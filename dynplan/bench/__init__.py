@@ -18,6 +18,7 @@ from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.pipeline import bench_pipeline
 from dynplan.bench.prior import bench_prior
 from dynplan.bench.sharing import bench_sharing
+from dynplan.bench.startup import bench_startup
 from dynplan.bench.vqvae import bench_vqvae
 from dynplan.bench.world import bench_world
 from dynplan.world import resolve, world, world_names
@@ -37,6 +38,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "evaluation": bench_evaluation,
     "sharing": bench_sharing,
     "pipeline": bench_pipeline,
+    "startup": bench_startup,
 }
 
 

@@ -1,18 +1,22 @@
 """Recorded episodes and the datasets training reads: resumable collection into MCAP logs, the chunked Zarr frames
-store (built with dask) and torch datasets over it."""
+store (built with dask) and torch datasets over it.
 
-from dynplan.data.build import build_frame_store_from_logs
-from dynplan.data.collect import CollectPlan, log_path, record_episode
-from dynplan.data.datasets import FrameDataset, WindowDataset
-from dynplan.data.store import fingerprint, list_logs
+Each public name is imported from its module when first used, so that `dynplan.data.collect` (what recording and a
+command's `--help` need) loads neither torch nor dask.
+"""
 
-__all__ = [
-    "CollectPlan",
-    "FrameDataset",
-    "WindowDataset",
-    "build_frame_store_from_logs",
-    "fingerprint",
-    "list_logs",
-    "log_path",
-    "record_episode",
-]
+from dynplan.lazy import lazy_names
+
+#: Each public name by its module, imported when first used (`dynplan.lazy`).
+_PUBLIC = {
+    "CollectPlan": "dynplan.data.collect",
+    "FrameDataset": "dynplan.data.datasets",
+    "WindowDataset": "dynplan.data.datasets",
+    "build_frame_store_from_logs": "dynplan.data.build",
+    "fingerprint": "dynplan.data.store",
+    "list_logs": "dynplan.data.store",
+    "log_path": "dynplan.data.collect",
+    "record_episode": "dynplan.data.collect",
+}
+__getattr__, __dir__ = lazy_names(__name__, _PUBLIC)
+__all__ = sorted(_PUBLIC)

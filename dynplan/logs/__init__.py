@@ -1,7 +1,16 @@
 """Episode logs: one MCAP file per episode with Foxglove protobuf schemas (see `format`)."""
 
-from dynplan.logs.format import AgentTrack
-from dynplan.logs.reader import EpisodeLog, LogError, LogListing, inspect_log, read_episode_log
-from dynplan.logs.writer import write_episode_log
+from dynplan.lazy import lazy_names
 
-__all__ = ["AgentTrack", "EpisodeLog", "LogError", "LogListing", "inspect_log", "read_episode_log", "write_episode_log"]
+#: Each public name by its module, imported when first used (`dynplan.lazy`).
+_PUBLIC = {
+    "AgentTrack": "dynplan.logs.format",
+    "EpisodeLog": "dynplan.logs.reader",
+    "LogError": "dynplan.logs.reader",
+    "LogListing": "dynplan.logs.reader",
+    "inspect_log": "dynplan.logs.reader",
+    "read_episode_log": "dynplan.logs.reader",
+    "write_episode_log": "dynplan.logs.writer",
+}
+__getattr__, __dir__ = lazy_names(__name__, _PUBLIC)
+__all__ = sorted(_PUBLIC)

@@ -6,42 +6,22 @@
 Checkpoints are read and written by `dynplan.models.checkpoint`.
 """
 
-from __future__ import annotations
+from dynplan.lazy import lazy_names
 
-import os
-
-from dynplan.models.checkpoint import WEIGHTS, CheckpointError, cached, pretrained_path
-from dynplan.models.registry import WORLD_MODELS, WorldModelSpec, register_world_model, world_model_spec
-from dynplan.models.vqvae import PRESETS, VQVAE, VQVAEConfig
-from dynplan.models.world_model import LearnedWorldModel, load_world_model
-
-
-def load_vqvae(path: str | os.PathLike | None = None, model: str = "default") -> VQVAE:
-    """A trained VQ-VAE: from `path`, or (None) the committed checkpoint of the preset `model` ("default" or
-    "paper"), in eval mode; checked first (`checkpoint.verify`) and loaded once per content of the file."""
-    if path is None:
-        world_model_spec(model)  # an unknown configuration is named with the known ones
-        path = pretrained_path("vqvae", model)
-        if not path.exists():
-            raise CheckpointError(
-                f"{path}: no pretrained VQ-VAE '{model}' in this checkout; train one with "
-                f"`python -m flows.train vqvae --model {model}` and pass its path"
-            )
-        return cached("vqvae", path, model)
-    return cached("vqvae", path)
-
-
-__all__ = [
-    "PRESETS",
-    "VQVAE",
-    "WEIGHTS",
-    "WORLD_MODELS",
-    "LearnedWorldModel",
-    "VQVAEConfig",
-    "WorldModelSpec",
-    "load_vqvae",
-    "load_world_model",
-    "pretrained_path",
-    "register_world_model",
-    "world_model_spec",
-]
+#: Each public name by its module, imported when first used (`dynplan.lazy`).
+_PUBLIC = {
+    "LearnedWorldModel": "dynplan.models.world_model",
+    "PRESETS": "dynplan.models.vqvae",
+    "VQVAE": "dynplan.models.vqvae",
+    "VQVAEConfig": "dynplan.models.vqvae",
+    "WEIGHTS": "dynplan.models.checkpoint",
+    "WORLD_MODELS": "dynplan.models.registry",
+    "WorldModelSpec": "dynplan.models.registry",
+    "load_vqvae": "dynplan.models.world_model",
+    "load_world_model": "dynplan.models.world_model",
+    "pretrained_path": "dynplan.models.checkpoint",
+    "register_world_model": "dynplan.models.registry",
+    "world_model_spec": "dynplan.models.registry",
+}
+__getattr__, __dir__ = lazy_names(__name__, _PUBLIC)
+__all__ = sorted(_PUBLIC)

@@ -29,7 +29,7 @@ from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models import checkpoint
 from dynplan.models.caution import Caution, merge_samples, unsure_obstacles, widen_obstacles
 from dynplan.models.chain import ChainSpec, chain, keeps_greedy
-from dynplan.models.checkpoint import CheckpointError, pretrained_path
+from dynplan.models.checkpoint import CheckpointError, cached, pretrained_path
 from dynplan.models.device import check_device, one_thread
 from dynplan.models.encoding import encode_contexts
 from dynplan.models.pixelcnn import ConditionalPixelCNN
@@ -375,3 +375,18 @@ def load_world_model(
     paths = world_model_paths(model) if path is None else (Path(path) / "vqvae.pt", Path(path) / "pixelcnn.pt")
     tokenizer, prior = world_model_parts(paths, model)
     return LearnedWorldModel(tokenizer, prior, samples, futures, seed, caution_for(model, caution), device)
+
+
+def load_vqvae(path: str | os.PathLike | None = None, model: str = "default") -> VQVAE:
+    """A trained VQ-VAE: from `path`, or (None) the committed checkpoint of the preset `model` ("default" or
+    "paper"), in eval mode; checked first (`checkpoint.verify`) and loaded once per content of the file."""
+    if path is None:
+        world_model_spec(model)  # an unknown configuration is named with the known ones
+        path = pretrained_path("vqvae", model)
+        if not path.exists():
+            raise CheckpointError(
+                f"{path}: no pretrained VQ-VAE '{model}' in this checkout; train one with "
+                f"`python -m flows.train vqvae --model {model}` and pass its path"
+            )
+        return cached("vqvae", path, model)
+    return cached("vqvae", path)

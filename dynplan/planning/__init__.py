@@ -1,19 +1,20 @@
 """Planning against a predicted future: the forward-model seam, PUCT MCTS and the episode loop (docs/protocol.md §3)."""
 
-from dynplan.planning.episode import EpisodeResult, run_episode, run_episodes
-from dynplan.planning.forward import ForwardModel, OracleModel, Prediction, ZeroModel, goal_centres
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
+from dynplan.lazy import lazy_names
 
-__all__ = [
-    "EpisodeResult",
-    "ForwardModel",
-    "MCTSConfig",
-    "MCTSPlanner",
-    "OracleModel",
-    "Prediction",
-    "RandomPlanner",
-    "ZeroModel",
-    "goal_centres",
-    "run_episode",
-    "run_episodes",
-]
+#: Each public name by its module, imported when first used (`dynplan.lazy`).
+_PUBLIC = {
+    "EpisodeResult": "dynplan.planning.episode",
+    "ForwardModel": "dynplan.planning.forward",
+    "MCTSConfig": "dynplan.planning.mcts",
+    "MCTSPlanner": "dynplan.planning.mcts",
+    "OracleModel": "dynplan.planning.forward",
+    "Prediction": "dynplan.planning.forward",
+    "RandomPlanner": "dynplan.planning.mcts",
+    "ZeroModel": "dynplan.planning.forward",
+    "goal_centres": "dynplan.planning.forward",
+    "run_episode": "dynplan.planning.episode",
+    "run_episodes": "dynplan.planning.episode",
+}
+__getattr__, __dir__ = lazy_names(__name__, _PUBLIC)
+__all__ = sorted(_PUBLIC)

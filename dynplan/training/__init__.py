@@ -1,9 +1,14 @@
 """Training the world model's stages: resumable loops checkpointed every epoch (metrics to CSV), run folders named
 by what determines their result, and the code arrays the prior trains on."""
 
-from dynplan.training.codes import build_codes
-from dynplan.training.loop import TrainBudget
-from dynplan.training.pixelcnn import train_pixelcnn
-from dynplan.training.vqvae import train_vqvae
+from dynplan.lazy import lazy_names
 
-__all__ = ["TrainBudget", "build_codes", "train_pixelcnn", "train_vqvae"]
+#: Each public name by its module, imported when first used (`dynplan.lazy`).
+_PUBLIC = {
+    "TrainBudget": "dynplan.training.loop",
+    "build_codes": "dynplan.training.codes",
+    "train_pixelcnn": "dynplan.training.pixelcnn",
+    "train_vqvae": "dynplan.training.vqvae",
+}
+__getattr__, __dir__ = lazy_names(__name__, _PUBLIC)
+__all__ = sorted(_PUBLIC)
