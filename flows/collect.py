@@ -12,7 +12,7 @@ from collections import Counter
 
 from dynplan.cli import CommandParser, bounded
 from dynplan.config import field_help
-from dynplan.data.collect import CollectPlan, record_episode, stale_temporaries
+from dynplan.data.collect import CollectPlan, all_recorded, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
@@ -60,7 +60,11 @@ def collect_episodes(
         world_name=unmapped(entry.name),
     )
     results = [f.result() for f in progress(as_completed(futures), total=len(futures), description="collect")]
-    counts = Counter(r["status"] for r in results)
+    return _summary(out, seeds, Counter(r["status"] for r in results))
+
+
+def _summary(out: str, seeds: list[int], counts: Counter) -> dict:
+    """What a collection did, printed in one line."""
     print(f"{out}: {counts['written']} written, {counts['rewritten']} rewritten, {counts['skipped']} already complete")
     return {"out": out, "seeds": seeds, **{k: counts[k] for k in ("written", "rewritten", "skipped")}}
 
@@ -114,11 +118,13 @@ def main(argv: list[str] | None = None) -> dict:
         address = checked_dask_address(args.dask_address)
     except ValueError as error:
         parser.error(str(error))
-    runner = task_runner(address)
-    with temporary_api():
-        summary = collect_episodes.with_options(task_runner=runner)(
-            out=args.out, episodes=plan.episodes, seed=args.seed, config=config, world_name=args.world
-        )
+    if all_recorded(args.out, plan.seeds, config, world_name=args.world):  # nothing to do: no flow to run
+        summary = _summary(args.out, plan.seeds, Counter(skipped=plan.episodes))
+    else:
+        with temporary_api():
+            summary = collect_episodes.with_options(task_runner=task_runner(address))(
+                out=args.out, episodes=plan.episodes, seed=args.seed, config=config, world_name=args.world
+            )
     if args.json:
         print(json.dumps(summary))
     return summary

@@ -240,7 +240,8 @@ def _parser(command: Command) -> CommandParser:
         found.append(self)
         raise Accepted
 
-    with mock.patch.object(argparse.ArgumentParser, "parse_args", capture), pytest.raises(Accepted):
+    display = mock.patch.dict(os.environ, {"SDL_VIDEODRIVER": "dummy"})  # flows.play asks for a display first
+    with mock.patch.object(argparse.ArgumentParser, "parse_args", capture), display, pytest.raises(Accepted):
         command.main([])
     return found[0]
 

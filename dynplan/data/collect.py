@@ -62,9 +62,7 @@ def record_episode(
     """Make sure `out_dir` holds the log of the episode `seed` of a world under `config` (`n_frames` frames; a
     config of the world `world_name` given as a dict, or its recording default): a log already there is kept
     ("skipped") only if it is what the seed records, and rewritten otherwise."""
-    entry = world_of(config) if isinstance(config, Config) else world(world_name)
-    config = config if isinstance(config, Config) else entry.recording if config is None else entry.config(config)
-    n_frames = config.max_steps if n_frames is None else n_frames
+    entry, config, n_frames = _recording_of(config, n_frames, world_name)
     path = log_path(out_dir, entry.check_seed(seed))
     episode = entry.record(config, seed, n_frames)
     if not path.exists():
@@ -75,6 +73,33 @@ def record_episode(
         return RecordResult(seed, str(path), "skipped")
     write_bytes_atomic(path, fresh)
     return RecordResult(seed, str(path), "rewritten")
+
+
+def _recording_of(config: Config | dict | None, n_frames: int | None, world_name: str) -> tuple:
+    """(the world's entry, its recording config, the frames an episode records) for `record_episode`'s arguments."""
+    entry = world_of(config) if isinstance(config, Config) else world(world_name)
+    config = config if isinstance(config, Config) else entry.recording if config is None else entry.config(config)
+    return entry, config, config.max_steps if n_frames is None else n_frames
+
+
+def all_recorded(
+    out_dir: str | os.PathLike,
+    seeds: list[int],
+    config: Config | dict | None = None,
+    n_frames: int | None = None,
+    world_name: str = DEFAULT_WORLD,
+) -> bool:
+    """Whether `out_dir` already holds the log of every seed of `seeds` as `record_episode` would record it (so a
+    collection has nothing to do); False at the first missing or differing log."""
+    if not all(log_path(out_dir, seed).is_file() for seed in seeds):
+        return False
+    entry, config, n_frames = _recording_of(config, n_frames, world_name)
+    for seed in seeds:
+        episode = entry.record(config, entry.check_seed(seed), n_frames)
+        fresh = fresh_recording(episode, n_frames, log_path(out_dir, seed).name)
+        if not _is_recording(log_path(out_dir, seed), fresh, episode, n_frames):
+            return False
+    return True
 
 
 def _is_recording(path: Path, fresh: bytes, world: Recording, n_frames: int) -> bool:
