@@ -4,7 +4,8 @@ Serves the open-source Foxglove Studio 1.48 (fetched once from the npm registry 
 its pinned digests), the layout of the log's world (`dynplan/logs/layouts/replay-studio-1.48.json` for the road; a
 world's own, `WorldParts.studio_layout`) and the log on 127.0.0.1, prints the
 URL to open, and serves until interrupted. With --screenshot it instead opens the view in headless Chromium, waits
-until the app has listed the log's topics and drawn its panels, writes the picture and says what the app showed.
+until the app has listed the log's topics and drawn every panel whose topics have data by then, writes the picture
+and says what the app showed; exit status 1 (naming the panels) if they had not drawn within --timeout.
 
     python -m flows.view replay.mcap                      # then open the printed URL
     python -m flows.view replay.mcap --screenshot shot.png --at 3
@@ -127,7 +128,7 @@ def report_lines(report: ViewReport, out: Path, layout: Path = STUDIO_LAYOUT) ->
         lines.append(f"panel {panel.id} shows nothing" + (f": the log has no {', '.join(missing)}" if missing else ""))
     lines += [f"request off 127.0.0.1: {u}" for u in report.outside_requests]
     if not report.complete:
-        lines.append("the app had not drawn every image panel within --timeout; the picture shows it so")
+        lines.append("the app had not drawn every panel within --timeout; the picture shows it so")
     return lines
 
 
@@ -147,6 +148,8 @@ def main(argv: list[str] | None = None) -> ViewReport | Path | None:
     layout = studio_layout(Path(args.log))
     report = capture(app, layout, Path(args.log), Path(args.screenshot), chromium, settings)
     print("\n".join(report_lines(report, Path(args.screenshot), layout)))
+    if not report.complete:  # named above: the panels that show nothing
+        raise SystemExit(1)
     return report
 
 

@@ -133,7 +133,7 @@ def _interrupt(argv: list[str], after: str | None) -> subprocess.CompletedProces
 
 INTERRUPTED = {
     "collect-loading": (["flows.collect", "--out", "{tmp}", "--episodes", "100000"], None),
-    "collect-working": (["flows.collect", "--out", "{tmp}", "--episodes", "100000"], "Beginning flow run"),
+    "collect-working": (["flows.collect", "--out", "{tmp}", "--episodes", "100000", "--verbose"], "Beginning flow run"),
     "verify-loading": (["flows.build_datasets", "--verify", "{tmp}/none.zarr"], None),
     "results-loading": (["dynplan.evaluation.results", "--results-dir", "{tmp}"], None),
 }

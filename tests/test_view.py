@@ -338,6 +338,16 @@ def test_a_refused_schema_and_a_blank_panel_are_seen(studio, tmp_path, monkeypat
 
 
 @pytest.mark.slow
+def test_a_screenshot_whose_panels_do_not_draw_exits_1_naming_them(studio, replay_log, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(flows.view, "studio_layout", lambda log: REPLAY_LAYOUT)  # the other dialect: images stay blank
+    with pytest.raises(SystemExit) as exit:
+        flows.view.main([str(replay_log), "--screenshot", str(tmp_path / "blank.png"), "--timeout", "8"])
+    out = capsys.readouterr().out
+    assert exit.value.code == 1 and "within --timeout" in out, out
+    assert out.count("shows nothing") == 3 and "panel Image!" in out, out
+
+
+@pytest.mark.slow
 def test_the_browser_records_requests_of_the_page_and_its_workers(studio, tmp_path):
     """What `outside_requests` is made of sees a page's and a worker's requests elsewhere (none of which is sent)."""
     (tmp_path / "index.html").write_text("<script>fetch('http://192.0.2.1/from-page'); new Worker('w.js');</script>")

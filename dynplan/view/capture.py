@@ -21,7 +21,7 @@ from mcap.reader import make_reader
 from PIL import Image
 
 from dynplan.files import write_bytes_atomic
-from dynplan.logs.format import EPOCH_NS, image_topics, layout_topics
+from dynplan.logs.format import EPOCH_NS, layout_topics, panel_topics
 from dynplan.view.browser import Browser
 from dynplan.view.server import ViewServer, routes
 
@@ -115,7 +115,8 @@ def capture(app: Path, layout: Path, log: Path, out: Path, chromium: str, settin
         firsts = first_times(log)
         at_s = settings.at_s if settings.at_s is not None else max(firsts.get(t, 0.0) for t in layout_topics(layout))
         browser.open(server.origin + view_query(server.origin, log_url, at_s))
-        due = {key for key, topic in image_topics(layout).items() if firsts.get(topic, np.inf) <= at_s}
+        reads = panel_topics(layout)
+        due = {key for key, topics in reads.items() if topics and max(firsts.get(t, np.inf) for t in topics) <= at_s}
         state, complete = _wait(browser, due, settings.timeout_s)
         if state["problem_count"]:
             browser.evaluate(SHOW_PROBLEMS_JS)
@@ -151,15 +152,19 @@ def first_times(log: Path) -> dict[str, float]:
 
 
 def _wait(browser: Browser, due: set[str], timeout_s: float) -> tuple[dict, bool]:
-    """Poll the page until it lists topics and none of the image panels `due` (those whose topic has a message by
-    the time shown) waits for its image; the last state and whether it got there."""
+    """Poll the page until it lists topics and every panel `due` (those whose topics all have a message by the time
+    shown) has drawn — none waits for its data and its pixels show content (`_drawn`) — or the app lists a problem
+    (a refused topic's panels never draw); the last state and whether it got there within `timeout_s`."""
     deadline = time.monotonic() + timeout_s
     while True:
         state = browser.evaluate(STATE_JS)
         if state["error"]:
             raise RuntimeError(state["error"])
-        waiting = [p for p in state["panels"] if p["waiting"] and p["id"] in due]
-        ready = state["tab"] == "Topics" and bool(_topics(state["lines"])) and not waiting
+        listed = state["tab"] == "Topics" and bool(_topics(state["lines"]))
+        ready = listed and not any(p["waiting"] and p["id"] in due for p in state["panels"])
+        if ready and not state["problem_count"]:
+            pixels = np.asarray(Image.open(io.BytesIO(browser.screenshot())).convert("RGB"))
+            ready = all(_drawn(p, pixels) for p in state["panels"] if p["id"] in due)
         if ready or time.monotonic() > deadline:
             time.sleep(SETTLE_S)  # let the plots and images finish their frame
             return browser.evaluate(STATE_JS), bool(ready)
@@ -172,8 +177,9 @@ def _topics(lines: list[str]) -> dict[str, str]:
 
 
 def _drawn(panel: dict, pixels: np.ndarray) -> bool:
-    """Whether a panel's pixels show content: an image panel (either dialect) the world (≥ 10 % black road and some grey
-    obstacles), a plot lines (≥ 0.2 % of its canvas in saturated colour); other panels count as drawn."""
+    """Whether a panel's pixels show content: an image panel (either dialect) a world — the road's (≥ 10 % black road
+    and some grey obstacles) or any other's (≥ 3 colours on ≥ 1 % of it each; an empty panel shows its background and
+    a line of text) —, a plot lines (≥ 0.2 % of its canvas in saturated colour); other panels count as drawn."""
     kind = panel["id"].split("!")[0]
     box = panel["canvas"] or panel["box"]
     x, y, w, h = (round(v) for v in box)
@@ -184,7 +190,9 @@ def _drawn(panel: dict, pixels: np.ndarray) -> bool:
     if kind in ("ImageViewPanel", "Image"):
         black = (crop.max(axis=2) < 24).mean()
         grey = ((spread < 8) & (crop.min(axis=2) >= 24) & (crop.max(axis=2) <= 250)).mean()
-        return bool(black >= 0.10 and grey >= 0.002)
+        _, counts = np.unique(crop.reshape(-1, 3) // 16, axis=0, return_counts=True)
+        colours = int((counts >= 0.01 * counts.sum()).sum())
+        return bool(black >= 0.10 and grey >= 0.002) or colours >= 3
     if kind == "Plot":
         return bool((spread > 80).mean() >= 0.002)
     return True
