@@ -107,7 +107,10 @@ def evaluate_world(world_name: str, request: dict, command: str, artifacts: str 
     summary = own.summary(checked)
     lines = own.describe(summary)
     publish_summary(summary, artifact_key(own.summary_key, artifacts or checked.run), "\n".join(lines))
-    print(f"\n{world_name} run {checked.run!r}:\n" + "\n".join(lines))
+    if total:
+        print(f"\n{world_name} run {checked.run!r}:\n" + "\n".join(lines))
+    else:  # a rerun: its table is the one printed before
+        print(f"{world_name} run {checked.run!r}: every episode already played (`--check` prints its summary)")
     return summary
 
 

@@ -161,13 +161,29 @@ def test_the_readme_main_command_is_the_pipeline():
 def test_cli_runs_the_pipeline_on_an_ephemeral_api(tmp_path):
     import os
 
-    result = subprocess.run([sys.executable, "-m", "flows.collect_train_eval", "--preset", "smoke", "--out",
-                             str(tmp_path)], capture_output=True, text=True, timeout=600,
-                            env={**os.environ, "PREFECT_HOME": str(tmp_path / "prefect")})  # fmt: skip
-    assert result.returncode == 0, result.stderr[-3000:]
+    def run() -> tuple[subprocess.CompletedProcess, list[str]]:
+        result = subprocess.run([sys.executable, "-m", "flows.collect_train_eval", "--preset", "smoke", "--out",
+                                 str(tmp_path)], capture_output=True, text=True, timeout=600,
+                                env={**os.environ, "PREFECT_HOME": str(tmp_path / "prefect")})  # fmt: skip
+        assert result.returncode == 0, result.stderr[-3000:]
+        return result, (result.stdout + result.stderr).strip().splitlines()
+
+    result, lines = run()
     report = json.loads(result.stdout.strip().splitlines()[-1])["report"]
     assert report == str(tmp_path / "smoke" / "report" / "report.md")
     assert "--preset smoke" in Path(report).read_text()  # the report names the command that regenerates it
+    # the console: a line a stage, none of Prefect's own run lines (those are --verbose's)
+    assert [s.split(":")[0] for s in _stages(lines)] == ["collect", "build datasets", "vqvae [default]",
+                                                         "pixelcnn [default]", "evaluate"], lines  # fmt: skip
+    assert len(lines) <= 40 and not any("Finished in state" in line for line in lines), lines
+    _, again = run()  # a rerun: every stage says it was cached
+    assert len(again) <= 15 and all("cached" in s for s in _stages(again)[:4]), again
+    assert any("every episode already played" in line for line in again), again
+
+
+def _stages(lines: list[str]) -> list[str]:
+    """The pipeline's stage lines, from the stage's name on."""
+    return [line.split(" - stage ", 1)[1] for line in lines if " - stage " in line]
 
 
 @pytest.mark.slow
