@@ -273,3 +273,21 @@ def test_every_committed_freeway_score_holds_when_its_actions_are_replayed(run):
     done = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=1800)
     assert done.returncode == 0, done.stderr[-3000:]
     assert "every row of the run holds" in done.stdout
+
+
+def test_freeways_check_names_a_row_whose_actions_do_not_give_its_score(tmp_path):
+    """`flows.evaluate --world freeway --check` (the rows replayed on every core): a row told one point more than
+    its actions score is named, the others hold."""
+    pytest.importorskip("ale_py")
+    from dynplan.worlds.freeway.commands import Evaluate, FreewayEvaluation
+    from dynplan.worlds.freeway.results import RUNS
+
+    rows = Run(FREEWAY_RESULTS, "sticky", RUNS).current()
+    picked = [r for r in rows if r["technique"] == "zero" and r["mode"] == 0][:3]
+    picked[1] = {**picked[1], "score": picked[1]["score"] + 1}
+    run_dir = tmp_path / "runs" / "sticky"
+    run_dir.mkdir(parents=True)
+    (run_dir / "manifest.json").write_text((FREEWAY_RESULTS / "runs" / "sticky" / "manifest.json").read_text())
+    (run_dir / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in picked))
+    problems = Evaluate().check(FreewayEvaluation(results=str(tmp_path), run="sticky", role="evaluation"))
+    assert len(problems) == 1 and f"episode={picked[1]['episode']}" in problems[0], problems

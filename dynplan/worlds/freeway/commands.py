@@ -5,6 +5,10 @@ its command's help)."""
 from __future__ import annotations
 
 import argparse
+import itertools
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
 
 from pydantic import Field
 
@@ -177,14 +181,18 @@ class Evaluate:
         return summarise(read_run(request.results, request.run))
 
     def check(self, request: FreewayEvaluation) -> list[str]:
-        """Replay every counted row of the run in a fresh emulator: one line per row whose actions do not give its
-        score, knocks and steps (none: every score holds)."""
+        """Replay every counted row of the run in a fresh emulator, on every core (each row alone in a worker
+        process): one line per row whose actions do not give its score, knocks and steps (none: every score
+        holds)."""
         problems, run = [], Run(request.results, request.run, RUNS)
         run_settings = run.manifest()["settings"]
-        for row in progress(run.current(), description="rows replayed"):
-            problem = replay_check(row, run_settings)
-            if problem is not None:
-                problems.append(" ".join(f"{k}={row[k]}" for k in RUNS.case_keys) + f": {problem}")
+        rows = run.current()
+        spawn = multiprocessing.get_context("spawn")  # fresh workers: nothing of this process's threads
+        with ProcessPoolExecutor(max_workers=min(os.cpu_count() or 1, len(rows) or 1), mp_context=spawn) as pool:
+            checked = pool.map(replay_check, rows, itertools.repeat(run_settings))
+            for row, problem in zip(rows, progress(checked, total=len(rows), description="rows replayed"), strict=True):
+                if problem is not None:
+                    problems.append(" ".join(f"{k}={row[k]}" for k in RUNS.case_keys) + f": {problem}")
         return problems
 
     def describe(self, summary: list[dict]) -> list[str]:
