@@ -14,11 +14,11 @@ from dynplan.cli import interrupt_while_loading
 
 interrupt_while_loading()  # before any heavy import
 
-import importlib
 from typing import Any
 
 import gymnasium
 
+from dynplan.lazy import lazy_names
 from dynplan.version import __version__
 
 #: The public names, each imported from its module when first used: `import dynplan.cli` (what a command's `--help`
@@ -41,16 +41,7 @@ if "dynplan/Road-v0" not in gymnasium.registry:
     gymnasium.register(id="dynplan/Road-v0", entry_point="dynplan.env.road_env:RoadEnv")
 
 
-def __getattr__(name: str) -> Any:
-    if name not in _PUBLIC:
-        raise AttributeError(f"module 'dynplan' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_PUBLIC[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_PUBLIC})
+__getattr__, __dir__ = lazy_names(__name__, _PUBLIC)
 
 
 def make_env(**kwargs: Any) -> gymnasium.Env:
