@@ -19,14 +19,14 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
-from dynplan.cli import CommandParser
+from dynplan.cli import CommandParser, run_command
 from dynplan.data.build import build_frame_store
 from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem, store_world
 from dynplan.data.verify import verify_store
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world_names
-from flows.cli import add_console_options, run, temporary_api
+from flows.cli import add_console_options, temporary_api
 from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, dask_scheduler, task_runner
 
@@ -47,10 +47,10 @@ def build_datasets(
     world_name: str = DEFAULT_WORLD,
 ) -> dict:
     """Append every new log of the world `world_name` in `log_dir` to the frames store `out`."""
-    logs = [str(p) for p in list_logs(log_dir)]
     from prefect import unmapped
     from prefect.futures import as_completed
 
+    logs = [str(p) for p in list_logs(log_dir)]
     futures = inspect_log_task.map(logs, world_name=unmapped(world_name))
     infos = [f.result() for f in progress(as_completed(futures), total=len(futures), description="inspect logs")]
     with dask_scheduler(dask_address):
@@ -173,4 +173,4 @@ def _store_world(store: str) -> str:
 
 
 if __name__ == "__main__":
-    run(main, "python -m flows.build_datasets")
+    run_command(main, "python -m flows.build_datasets")

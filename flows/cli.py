@@ -1,6 +1,7 @@
-"""What every `python -m flows.…` command shares: a temporary Prefect API that dies with the command, started only
-when a flow is about to run (after the arguments are parsed and checked: `--help` and a usage error answer before
-Prefect is loaded), and one line, not a traceback, for an unexpected error (unless `--debug`).
+"""What every `python -m flows.…` command shares beside `dynplan.cli.run_command` (one line, not a traceback, for an
+unexpected error unless `--debug`): a temporary Prefect API that dies with the command, started only when a flow is
+about to run (after the arguments are parsed and checked: `--help` and a usage error answer before Prefect is
+loaded), and a console showing Prefect's run lines only with `--verbose`.
 
 Without `PREFECT_API_URL`, Prefect starts a temporary API server of its own, which outlives a command killed with
 SIGKILL and may print shutdown errors when it is stopped before Prefect's log and event workers have flushed.
@@ -18,12 +19,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import IO
 
-from dynplan.cli import add_debug_option, die_with_parent, run_command
+from dynplan.cli import add_debug_option, die_with_parent
 
 #: Seconds to wait for the temporary server's health check.
 STARTUP_TIMEOUT_S = 120.0
@@ -176,9 +177,3 @@ def add_console_options(parser: argparse.ArgumentParser) -> None:
     (Prefect's line for each run's start and end)."""
     add_debug_option(parser)
     parser.add_argument("--verbose", action="store_true", help="also print Prefect's line for each run's start and end")
-
-
-def run(main: Callable[[list[str] | None], object], prog: str) -> None:
-    """Run a command's `main` with `dynplan.cli.run_command`: an error is one line on stderr (the traceback with
-    `--debug`), an interrupt "interrupted" and exit status 130. `main` runs its flows within `temporary_api`."""
-    run_command(main, prog)

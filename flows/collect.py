@@ -10,14 +10,14 @@ from __future__ import annotations
 import json
 from collections import Counter
 
-from dynplan.cli import CommandParser, bounded
+from dynplan.cli import CommandParser, bounded, run_command
 from dynplan.config import field_help
 from dynplan.data.collect import CollectPlan, all_recorded, record_episode, stale_temporaries
 from dynplan.env.config import RoadConfig
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world, world_names
-from flows.cli import add_console_options, run, temporary_api
+from flows.cli import add_console_options, temporary_api
 from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, task_runner
 
@@ -42,15 +42,15 @@ def collect_episodes(
     world_name: str = DEFAULT_WORLD,
 ) -> dict:
     """Record episodes seed … seed+episodes−1 of the world `world_name` under `config` into `out`."""
+    from prefect import unmapped
+    from prefect.futures import as_completed
+
     plan, entry = CollectPlan(episodes=episodes, seed=seed), world(world_name)
     recording = entry.config(config) if config else entry.recording
     for seed_ in (seed, seed + episodes - 1):
         entry.check_seed(seed_)
     for leftover in stale_temporaries(out):
         leftover.unlink(missing_ok=True)
-    from prefect import unmapped
-    from prefect.futures import as_completed
-
     seeds = plan.seeds
     futures = record_episode_task.map(
         out,
@@ -143,4 +143,4 @@ def _recording(args) -> dict:
 
 
 if __name__ == "__main__":
-    run(main, "python -m flows.collect")
+    run_command(main, "python -m flows.collect")

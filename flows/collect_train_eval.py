@@ -29,7 +29,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from dynplan.cli import CommandParser
+from dynplan.cli import CommandParser, run_command
 from dynplan.config import ConfigError
 from dynplan.data.store import sha256_file
 from dynplan.files import atomic_path, write_bytes_atomic
@@ -46,7 +46,7 @@ from dynplan.pipeline.report import (
 from dynplan.world import DEFAULT_WORLD, world, world_names
 from flows.artifacts import publish_report
 from flows.build_datasets import build_datasets
-from flows.cli import add_console_options, run, temporary_api
+from flows.cli import add_console_options, temporary_api
 from flows.collect import collect_episodes
 from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, task_runner
@@ -233,4 +233,4 @@ def main(argv: list[str] | None = None) -> str:
 
 
 if __name__ == "__main__":
-    run(main, "python -m flows.collect_train_eval")
+    run_command(main, "python -m flows.collect_train_eval")

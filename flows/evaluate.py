@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from flows.cli import run
+from dynplan.cli import run_command
 from flows.worlds import evaluate_main, world_command
 
 
@@ -22,4 +22,4 @@ def main(argv: Sequence[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    run(main, "python -m flows.evaluate")
+    run_command(main, "python -m flows.evaluate")

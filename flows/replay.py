@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from flows.cli import run
+from dynplan.cli import run_command
 from flows.worlds import replay_main, world_command
 
 
@@ -20,4 +20,4 @@ def main(argv: Sequence[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    run(main, "python -m flows.replay")
+    run_command(main, "python -m flows.replay")

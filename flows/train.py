@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import zarr
 
-from dynplan.cli import CommandParser, bounded
+from dynplan.cli import CommandParser, bounded, run_command
 from dynplan.config import ConfigError, field_help
 from dynplan.data.metadata import metadata_problem
 from dynplan.data.store import store_problem, store_world
@@ -36,7 +36,7 @@ from dynplan.training.tensorboard import INSTALL, MissingExtra, check_available
 from dynplan.training.vqvae import train_vqvae
 from dynplan.world import DEFAULT_WORLD, world_names
 from flows.artifacts import ProgressArtifact
-from flows.cli import add_console_options, run, temporary_api
+from flows.cli import add_console_options, temporary_api
 from flows.deferred import NO_CACHE, flow, task
 
 if TYPE_CHECKING:
@@ -330,4 +330,4 @@ def main(argv: list[str] | None = None) -> str:
 
 
 if __name__ == "__main__":
-    run(main, "python -m flows.train")
+    run_command(main, "python -m flows.train")

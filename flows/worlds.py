@@ -88,6 +88,8 @@ def evaluate_world(world_name: str, request: dict, command: str, artifacts: str 
     world's: a lockstep batch of episodes); print and return the summary of its run. Publishes the episodes'
     progress and the summary as Prefect artifacts, the summary keyed `<summary_key>-<artifacts>` (default: the
     run's name)."""
+    from prefect.futures import as_completed
+
     own = world(world_name).load().evaluate
     checked = own.request_type(**request)
     recordings = own.recordings(checked)
@@ -97,8 +99,6 @@ def evaluate_world(world_name: str, request: dict, command: str, artifacts: str 
     total = sum(job["episodes"] for job in jobs)
     if total:
         print(f"{total} episodes to play into {world_name} run {checked.run!r}, in {len(jobs)} batches, one task each")
-    from prefect.futures import as_completed
-
     futures = [world_job_task.submit(world_name, request, job) for job in jobs]
     played = ProgressArtifact(f"episodes played into run {checked.run!r}", total)
     for future in progress(as_completed(futures), total=len(futures), description=f"{world_name} batches"):

@@ -12,7 +12,7 @@ import psutil
 import pytest
 from prefect.settings import PREFECT_API_URL, temporary_settings
 
-from flows.cli import run
+from dynplan.cli import run_command
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -62,13 +62,13 @@ def failing_main(argv=None):
 def test_an_unexpected_error_is_one_line_and_exit_1(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["python -m flows.x"])
     with temporary_settings(updates={PREFECT_API_URL: "http://127.0.0.1:9/api"}), pytest.raises(SystemExit) as exit_:
-        run(failing_main, "python -m flows.x")
+        run_command(failing_main, "python -m flows.x")
     assert exit_.value.code == 1
     err = capsys.readouterr().err
     assert err == "python -m flows.x: error: RuntimeError: the disk is on fire (run with --debug for the traceback)\n"
     monkeypatch.setattr(sys, "argv", ["python -m flows.x", "--debug"])
     with temporary_settings(updates={PREFECT_API_URL: "http://127.0.0.1:9/api"}), pytest.raises(RuntimeError):
-        run(failing_main, "python -m flows.x")
+        run_command(failing_main, "python -m flows.x")
 
 
 @pytest.mark.parametrize("module", ["collect", "build_datasets", "collect_train_eval", "evaluate", "replay", "train"])

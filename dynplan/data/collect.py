@@ -95,9 +95,8 @@ def all_recorded(
         return False
     entry, config, n_frames = _recording_of(config, n_frames, world_name)
     for seed in seeds:
-        episode = entry.record(config, entry.check_seed(seed), n_frames)
-        fresh = fresh_recording(episode, n_frames, log_path(out_dir, seed).name)
-        if not _is_recording(log_path(out_dir, seed), fresh, episode, n_frames):
+        path, episode = log_path(out_dir, seed), entry.record(config, entry.check_seed(seed), n_frames)
+        if not _is_recording(path, fresh_recording(episode, n_frames, path.name), episode, n_frames):
             return False
     return True
 

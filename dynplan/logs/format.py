@@ -154,12 +154,6 @@ def _image_panel(config: dict) -> tuple[str, list[str]] | None:
     return None
 
 
-def image_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> dict[str, str]:
-    """Each image panel of a Foxglove layout (by panel id) and the image topic it draws."""
-    configs = json.loads(Path(layout).read_text())["configById"]
-    return {key: image[0] for key, config in configs.items() if (image := _image_panel(config))}
-
-
 def panel_topics(layout: str | os.PathLike = REPLAY_LAYOUT) -> dict[str, set[str]]:
     """The topics each panel of a Foxglove layout reads (by panel id): image and annotation topics of image panels
     (either dialect), the topics of plots' and raw messages' paths."""
