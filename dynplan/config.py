@@ -11,6 +11,8 @@ checkpoints stay valid.
 
 from __future__ import annotations
 
+import hashlib
+import json
 from typing import Any, ClassVar
 
 from pydantic import BaseModel, ConfigDict, ValidationError, model_serializer
@@ -96,3 +98,8 @@ class Config(BaseModel):
     def from_dict(cls, values: dict | None = None, **overrides: Any):
         """Build from a plain dict (MCAP metadata, Prefect parameters) plus keyword overrides."""
         return cls(**{**(values or {}), **overrides})
+
+
+def digest(*parts: Any) -> str:
+    """A stable hex key of JSON-serialisable parts (configs, fingerprints, code versions)."""
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()

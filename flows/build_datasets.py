@@ -18,11 +18,9 @@ import json
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from dynplan.cli import CommandParser, run_command
-from dynplan.data.build import build_frame_store
-from dynplan.data.store import LogInfo, inspect_for_store, list_logs, store_problem, store_world
-from dynplan.data.verify import verify_store
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.world import DEFAULT_WORLD, world_names
@@ -30,9 +28,17 @@ from flows.cli import add_console_options, temporary_api
 from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, dask_scheduler, task_runner
 
+if TYPE_CHECKING:
+    from dynplan.data.store import LogInfo
+
+# zarr and dask are imported by the functions that read or write a store, so that `--help` and a usage error
+# answer at once.
+
 
 @task(name="inspect-log", cache_policy=NO_CACHE)
 def inspect_log_task(path: str, world_name: str = DEFAULT_WORLD) -> LogInfo:
+    from dynplan.data.store import inspect_for_store
+
     info = inspect_for_store(path)
     if not info.error and info.world != world_name:
         return replace(info, error=f"{path}: a log of the {info.world} world; this build is --world {world_name}'s")
@@ -49,6 +55,9 @@ def build_datasets(
     """Append every new log of the world `world_name` in `log_dir` to the frames store `out`."""
     from prefect import unmapped
     from prefect.futures import as_completed
+
+    from dynplan.data.build import build_frame_store
+    from dynplan.data.store import list_logs
 
     logs = [str(p) for p in list_logs(log_dir)]
     futures = inspect_log_task.map(logs, world_name=unmapped(world_name))
@@ -68,6 +77,8 @@ def build_datasets(
 
 def verify(store: str, log_dir: str | None, as_json: bool) -> dict:
     """Check every chunk of `store`, repairing from `log_dir` if given; exit 1 if damage remains."""
+    from dynplan.data.verify import verify_store
+
     report = verify_store(store, log_dir)
     for damage in report.damage:
         print(f"{store}: {damage.describe()}", file=sys.stderr)
@@ -126,6 +137,8 @@ def _parser() -> CommandParser:
 def main(argv: list[str] | None = None) -> dict:
     parser = _parser()
     args = parser.parse_args(argv)
+    from dynplan.data.store import store_problem
+
     try:
         address = checked_dask_address(args.dask_address) if args.verify is None else None
         if args.log_dir is not None and not any(Path(args.log_dir).glob("*.mcap")):
@@ -168,6 +181,8 @@ def main(argv: list[str] | None = None) -> dict:
 
 def _store_world(store: str) -> str:
     """The world of the frames store at `store` (the road where there is none yet, or it names none)."""
+    from dynplan.data.store import store_world
+
     meta = Path(store, "zarr.json")
     return store_world(json.loads(meta.read_text()).get("attributes", {})) if meta.is_file() else DEFAULT_WORLD
 

@@ -31,10 +31,8 @@ from pathlib import Path
 
 from dynplan.cli import CommandParser, run_command
 from dynplan.config import ConfigError
-from dynplan.data.store import sha256_file
-from dynplan.files import atomic_path, write_bytes_atomic
-from dynplan.models import checkpoint as checkpoints
-from dynplan.models import pretrained_path
+from dynplan.files import atomic_path, sha256_file, write_bytes_atomic
+from dynplan.models.weights import pretrained_path
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.pipeline.presets import PipelinePreset, pipeline_preset, pipeline_presets
 from dynplan.pipeline.report import (
@@ -50,7 +48,6 @@ from flows.cli import add_console_options, temporary_api
 from flows.collect import collect_episodes
 from flows.deferred import NO_CACHE, flow, task
 from flows.runners import add_dask_option, checked_dask_address, task_runner
-from flows.train import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
 from flows.worlds import evaluate_world
 
 
@@ -64,6 +61,8 @@ def _install(source: Path, target: Path) -> None:
 
 def _trained(run_dir: Path, kind: str, epochs: int) -> bool:
     final = run_dir / f"{kind}.pt"
+    from dynplan.models import checkpoint as checkpoints
+
     return final.exists() and checkpoints.load(final, kind)["epoch"] >= epochs
 
 
@@ -72,6 +71,9 @@ def world_model_task(preset: dict, model: str, store: str, work: str) -> list[di
     """Train (or reuse) both stages of configuration `model`, install them in `work/models/<model>/`; return
     what happened per stage. With `pretrained`, a stage whose committed weights exist uses them (a committed
     tokenizer without a committed prior: the prior trains on the store encoded by it)."""
+    from dynplan.models import checkpoint as checkpoints  # torch and the training code: on use, not for `--help`
+    from flows.training import build_codes_task, pixelcnn_run_dir, train_pixelcnn_task, train_vqvae_task, vqvae_run_dir
+
     plan = PipelinePreset(**preset)
     target = Path(work) / "models" / model
     committed = {stage: pretrained_path(stage, model) for stage in ("vqvae", "pixelcnn")}

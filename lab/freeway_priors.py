@@ -19,8 +19,8 @@ import torch
 
 from dynplan.cli import Bounded, CommandParser, run_command
 from dynplan.models.chain import ChainSpec, chain, forget_greedy
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, ConditionalPixelCNN
-from dynplan.models.vqvae import PRESETS
+from dynplan.models.configs import PIXELCNN_PRESETS, PRESETS
+from dynplan.models.pixelcnn import ConditionalPixelCNN
 
 
 def chain_ms(channels: int, layers: int, strips: bool, k: int, repeats: int) -> float:

@@ -26,7 +26,8 @@ def world_model(model: str, samples: int = 0, futures: int = 0, prior: str | Non
     """The committed world model of configuration `model`, or its tokenizer with the prior checkpoint `prior`;
     `caution`: what overrides the configuration's own (field → value)."""
     from dynplan.models.registry import caution_for
-    from dynplan.models.world_model import LearnedWorldModel, load_world_model, world_model_parts, world_model_paths
+    from dynplan.models.weights import world_model_paths
+    from dynplan.models.world_model import LearnedWorldModel, load_world_model, world_model_parts
 
     if prior is None:
         return load_world_model(model=model, samples=samples, futures=futures, caution=caution)

@@ -15,9 +15,10 @@ from dynplan.cli import CommandParser, run_command
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
 from dynplan.evaluation.cases import EVAL_SEED_START, Case
+from dynplan.planning.config import PAPER_PRIOR, MCTSConfig
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel
-from dynplan.planning.mcts import PAPER_PRIOR, MCTSConfig, MCTSPlanner
+from dynplan.planning.mcts import MCTSPlanner
 
 FLAT_PRIOR = (2.5, 2.5, 2.0, 2.0, 1.0, 1.0, 1.0, 1.0)
 

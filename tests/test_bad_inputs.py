@@ -18,7 +18,7 @@ import flows.replay
 import flows.train
 from dynplan.data.collect import log_path, record_episode, stale_temporaries
 from dynplan.logs import read_episode_log
-from dynplan.models.checkpoint import pretrained_path
+from dynplan.models.weights import pretrained_path
 from dynplan.paths import check_output
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -6,8 +6,9 @@ import pytest
 import torch
 
 from dynplan.models.batched import batched_weights, generate_batched
+from dynplan.models.configs import PixelCNNConfig
 from dynplan.models.generation import generate_fast
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig, draw_uniforms
+from dynplan.models.pixelcnn import ConditionalPixelCNN, draw_uniforms
 
 SMALL = PixelCNNConfig(codebook_size=16, channels=8, layers=4, embed_dim=4, condition_channels=8)
 
@@ -80,7 +81,8 @@ def test_weights_are_laid_out_once_and_stay_as_they_were_laid_out():
 
 def test_the_world_model_generates_large_batches_batched_and_names_a_bad_device(monkeypatch):
     from dynplan.models import chain, world_model
-    from dynplan.models.vqvae import VQVAE, VQVAEConfig
+    from dynplan.models.configs import VQVAEConfig
+    from dynplan.models.vqvae import VQVAE
 
     tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
                                   likelihood="categorical", local=True)).eval()  # fmt: skip

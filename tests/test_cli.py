@@ -100,8 +100,21 @@ def probe(*argv: str, env: dict | None = None) -> subprocess.CompletedProcess:
                           timeout=120)  # fmt: skip
 
 
-@pytest.mark.parametrize("argv", [("flows.collect", "--help"), ("flows.collect", "--episodes", "0")])
-def test_collect_answers_before_loading_prefect_or_torch(argv):
+#: Each flow's `--help` (every world's, for the commands every world shares) and a usage error of each.
+ANSWERED_AT_ONCE = [
+    ("flows.collect", "--help"), ("flows.collect", "--episodes", "0"),
+    ("flows.evaluate", "--help"), ("flows.evaluate", "--episodes", "0"),
+    ("flows.evaluate", "--world", "freeway", "--help"), ("flows.evaluate", "--world", "minigrid", "--help"),
+    ("flows.replay", "--help"), ("flows.replay", "--world", "freeway", "--help"), ("flows.replay",),
+    ("flows.build_datasets", "--help"), ("flows.build_datasets", "--bogus"),
+    ("flows.train", "--help"), ("flows.train", "nosuchstage"),
+    ("flows.collect_train_eval", "--help"), ("flows.collect_train_eval", "--preset", "nosuch"),
+    ("flows.view", "--help"), ("flows.view",), ("flows.play", "--help"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("argv", ANSWERED_AT_ONCE, ids=" ".join)
+def test_a_flow_answers_help_and_a_usage_error_before_loading_prefect_or_torch(argv):
     proc = probe(*argv)
     assert proc.stdout.splitlines()[-2:] == [f"status {0 if '--help' in argv else 2}", "[]"], proc.stdout[-500:]
 

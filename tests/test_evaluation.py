@@ -237,9 +237,10 @@ def test_results_are_reused_only_for_the_same_playouts_and_log(tmp_path, eval_lo
 
 
 def test_the_search_never_looks_past_the_timeout_frame(eval_logs):
+    from dynplan.planning.config import MCTSConfig
     from dynplan.planning.episode import run_episode
     from dynplan.planning.forward import ForwardModel, OracleModel
-    from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+    from dynplan.planning.mcts import MCTSPlanner
 
     world = read_episode_log(log_path(eval_logs, EVAL_SEED_START)).world()
     oracle, asked = OracleModel(world), []
@@ -262,18 +263,17 @@ def test_learned_techniques_run_per_world_model(tmp_path, eval_logs, monkeypatch
     import torch
 
     import dynplan.evaluation.agent as agent_module
-    import dynplan.evaluation.techniques as techniques
     import dynplan.models.world_model as world_model
-    from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+    from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
+    from dynplan.models.pixelcnn import ConditionalPixelCNN
     from dynplan.models.registry import WORLD_MODELS
-    from dynplan.models.vqvae import VQVAE, VQVAEConfig
+    from dynplan.models.vqvae import VQVAE
 
     torch.manual_seed(0)
     tokenizer = VQVAE(VQVAEConfig(channels=(8, 8), strides=(2, 2), latent_dim=4, codebook_size=16,
                                   likelihood="categorical", local=True))  # fmt: skip
     prior = ConditionalPixelCNN(PixelCNNConfig(codebook_size=16, channels=8, layers=2, condition_channels=8))
-    for module in (world_model, techniques, agent_module):
-        monkeypatch.setattr(module, "world_model_parts", lambda paths, model: (tokenizer, prior))
+    monkeypatch.setattr(world_model, "world_model_parts", lambda paths, model: (tokenizer, prior))  # every caller's
     five = AgentSpec(playouts=5)
     all_cases = cases(["samples5", "oracle"], speeds=(1.0,), rollout_steps=(1,), episodes=1, models=("default",))
     assert [(c.technique, c.model) for c in all_cases] == [("samples5", "default"), ("oracle", None)]

@@ -17,9 +17,10 @@ from dynplan.evaluation.replay import replay
 from dynplan.evaluation.table import render_markdown
 from dynplan.evaluation.techniques import TECHNIQUES, Technique, register_technique
 from dynplan.models import checkpoint
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
+from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import WORLD_MODELS, WorldModelSpec, register_world_model
-from dynplan.models.vqvae import VQVAE, VQVAEConfig
+from dynplan.models.vqvae import VQVAE
 from dynplan.planning.forward import ForwardModel, Prediction
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -21,11 +21,12 @@ from dynplan.data.datasets import FrameDataset, split_of
 from dynplan.data.store import list_logs
 from dynplan.models import chain as chain_module
 from dynplan.models.chain import ChainSpec, chain, forget_greedy
+from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
 from dynplan.models.likelihood import Categorical
 from dynplan.models.metrics import frame_errors
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig, from_strips, to_strips
+from dynplan.models.pixelcnn import ConditionalPixelCNN, from_strips, to_strips
 from dynplan.models.registry import default_model, models_of, world_model_spec
-from dynplan.models.vqvae import VQVAE, VQVAEConfig, padded
+from dynplan.models.vqvae import VQVAE, padded
 from dynplan.world import world
 from dynplan.worlds.freeway import game as freeway
 from dynplan.worlds.freeway.models import PRIOR, TOKENIZER

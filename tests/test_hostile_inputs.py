@@ -49,7 +49,7 @@ from dynplan.data.store import inspect_for_store
 from dynplan.evaluation.store_schema import ManifestSchema, RowSchema
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.models import checkpoint
-from dynplan.models.checkpoint import pretrained_path
+from dynplan.models.weights import pretrained_path
 from tests.hostile import (
     LOG_DAMAGE,
     bad_values,

@@ -6,9 +6,10 @@ import pytest
 from dynplan.config import ConfigError
 from dynplan.env import GOAL_VALUE, RoadConfig, generate_world
 from dynplan.env.agent import action_deltas
+from dynplan.planning.config import MCTSConfig
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel, Prediction, ZeroModel, goal_centres
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner, goal_prior
+from dynplan.planning.mcts import MCTSPlanner, RandomPlanner, goal_prior
 
 LEFT, DOWN_LEFT, DOWN, DOWN_RIGHT, RIGHT, UP_RIGHT, UP, UP_LEFT = range(8)
 T = 203

@@ -5,7 +5,8 @@ import torch
 
 from dynplan.bench.reference import generate_naive
 from dynplan.config import ConfigError
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.configs import PixelCNNConfig
+from dynplan.models.pixelcnn import ConditionalPixelCNN
 
 SMALL = PixelCNNConfig(codebook_size=16, channels=8, layers=4, embed_dim=4, condition_channels=8)
 
@@ -100,9 +101,9 @@ def test_small_real_training_on_a_code_store_lowers_the_loss(tmp_path, recorded_
     from dynplan.data.build import build_frame_store_from_logs
     from dynplan.data.store import list_logs
     from dynplan.models.checkpoint import load_pixelcnn_checkpoint
-    from dynplan.models.vqvae import VQVAEConfig
+    from dynplan.models.configs import VQVAEConfig
+    from dynplan.training.budget import TrainBudget
     from dynplan.training.codes import build_codes
-    from dynplan.training.loop import TrainBudget
     from dynplan.training.pixelcnn import train_pixelcnn
     from dynplan.training.vqvae import train_vqvae
 

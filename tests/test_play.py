@@ -9,9 +9,10 @@ import pytest
 
 from dynplan.env import RoadConfig, generate_world
 from dynplan.logs.reader import read_episode_log
+from dynplan.planning.config import MCTSConfig
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+from dynplan.planning.mcts import MCTSPlanner
 from dynplan.worlds.road.play import MOVE_KEYS, PlayState, action_of, build_state
 
 pygame = pytest.importorskip("pygame")

@@ -8,10 +8,9 @@ import torch
 
 from dynplan.data.build import build_frame_store_from_logs
 from dynplan.data.store import list_logs
-from dynplan.models.pixelcnn import PixelCNNConfig
-from dynplan.models.vqvae import VQVAEConfig
+from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
+from dynplan.training.budget import TrainBudget
 from dynplan.training.codes import build_codes
-from dynplan.training.loop import TrainBudget
 from dynplan.training.pixelcnn import train_pixelcnn
 from dynplan.training.tensorboard import read_images, read_scalars
 from dynplan.training.vqvae import train_vqvae

@@ -13,9 +13,11 @@ from dynplan.data.patches import distinct_patches
 from dynplan.data.store import list_logs
 from dynplan.env import RoadConfig, generate_world
 from dynplan.models.checkpoint import CheckpointError, load_vqvae_checkpoint
+from dynplan.models.configs import PRESETS, VQVAEConfig
 from dynplan.models.likelihood import WORLD_VALUES, Categorical, DMoL, snap, snap_tensor, to_unit, value_index
-from dynplan.models.vqvae import DECODE_ROWS, PRESETS, SHARPNESS_GRID, VQVAE, VQVAEConfig
-from dynplan.training.vqvae import TrainBudget, content_sample, train_vqvae
+from dynplan.models.vqvae import DECODE_ROWS, SHARPNESS_GRID, VQVAE
+from dynplan.training.budget import TrainBudget
+from dynplan.training.vqvae import content_sample, train_vqvae
 
 TINY = VQVAEConfig(name="tiny", channels=(8, 8, 8), strides=(2, 2, 2), latent_dim=4, codebook_size=16, n_mixtures=3,
                    batch_size=8)  # fmt: skip
@@ -255,7 +257,7 @@ def test_a_checkpoint_of_another_config_is_refused(tmp_path, store):
 
 
 def test_train_flow_is_cached_across_runs(tmp_path, store, prefect_api):
-    from flows.train import train_vqvae_flow
+    from flows.training import train_vqvae_flow
 
     budget = {"epochs": 1, "steps_per_epoch": 3, "val_frames": 20, "threads": 1}
     overrides = {k: v for k, v in TINY.model_dump().items() if k != "name"}
@@ -346,7 +348,7 @@ def test_a_run_can_start_from_another_runs_weights(tmp_path, store):
 
 def test_fields_added_later_keep_earlier_configs_keys():
     """Checkpoints and run folders are keyed by the config's dict: a field left at its neutral value is not in it."""
-    from dynplan.models.checkpoint import digest
+    from dynplan.config import digest
 
     assert "goal_weight" not in PRESETS["paper"].model_dump()
     assert PRESETS["default"].model_dump()["goal_weight"] == 10.0

@@ -22,8 +22,8 @@ from dynplan.models.checkpoint import (
     UnreadableCheckpoint,
     load_pixelcnn_checkpoint,
     load_vqvae_checkpoint,
-    pretrained_path,
 )
+from dynplan.models.weights import pretrained_path, weights_sha256
 from dynplan.models.world_model import load_world_model
 
 #: Imported with the test module: Prefect binds its log handlers to the streams of the moment.
@@ -65,7 +65,7 @@ def test_the_committed_weights_pass_and_are_what_their_cards_describe():
             path = pretrained_path(stage, model)
             state = checkpoint.verify(path, stage, configuration=model)
             card = json.loads(path.with_suffix(".json").read_text())
-            assert card["sha256"] == checkpoint.weights_sha256(path) and card["config"]["name"] == model
+            assert card["sha256"] == weights_sha256(path) and card["config"]["name"] == model
             assert state["config"]["name"] == model
 
 

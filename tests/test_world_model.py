@@ -13,13 +13,15 @@ from dynplan.env import GOAL_VALUE, RoadConfig, generate_world
 from dynplan.models.caution import Caution, merge_samples, widen_obstacles
 from dynplan.models.chain import chain
 from dynplan.models.checkpoint import CheckpointError
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
+from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_names
 from dynplan.models.streams import observation_stream
-from dynplan.models.vqvae import VQVAE, VQVAEConfig
+from dynplan.models.vqvae import VQVAE
 from dynplan.models.world_model import LearnedWorldModel, load_world_model
+from dynplan.planning.config import MCTSConfig
 from dynplan.planning.episode import run_episode
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+from dynplan.planning.mcts import MCTSPlanner
 
 
 def test_merge_takes_the_union_of_obstacles_and_the_median_goal():

@@ -19,7 +19,8 @@ from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import caution_for, world_model_spec
 from dynplan.models.vqvae import VQVAE
 from dynplan.models.world_model import LearnedWorldModel, load_world_model
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+from dynplan.planning.config import MCTSConfig
+from dynplan.planning.mcts import MCTSPlanner
 
 PAPER_GPU_MS = 1700.0
 

@@ -7,9 +7,10 @@ import numpy as np
 from dynplan.bench.timing import pin_to_one_core
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import generate_world
+from dynplan.planning.config import MCTSConfig
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import OracleModel
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner
+from dynplan.planning.mcts import MCTSPlanner
 
 #: The authors' code (ported to Python 3, 50 episodes per case; docs/protocol.md §4), seconds → ms; not re-run here.
 REFERENCE_MS = {3: 120.0, 10: 402.0}  # medians

@@ -20,10 +20,17 @@ CASES: dict[str, tuple[tuple[str, ...], int]] = {
     "flows.collect usage error": (("-m", "flows.collect", "--episodes", "0"), 2),
     "flows.evaluate --help": (("-m", "flows.evaluate", "--help"), 0),
     "flows.evaluate usage error": (("-m", "flows.evaluate", "--episodes", "0"), 2),
+    "flows.evaluate --world freeway --help": (("-m", "flows.evaluate", "--world", "freeway", "--help"), 0),
+    "flows.evaluate --world minigrid --help": (("-m", "flows.evaluate", "--world", "minigrid", "--help"), 0),
     "flows.build_datasets --help": (("-m", "flows.build_datasets", "--help"), 0),
+    "flows.build_datasets usage error": (("-m", "flows.build_datasets", "--bogus"), 2),
     "flows.train --help": (("-m", "flows.train", "--help"), 0),
+    "flows.train usage error": (("-m", "flows.train", "nosuchstage"), 2),
     "flows.collect_train_eval --help": (("-m", "flows.collect_train_eval", "--help"), 0),
+    "flows.collect_train_eval usage error": (("-m", "flows.collect_train_eval", "--preset", "nosuch"), 2),
     "flows.replay --help": (("-m", "flows.replay", "--help"), 0),
+    "flows.replay usage error": (("-m", "flows.replay"), 2),
+    "flows.view usage error": (("-m", "flows.view"), 2),
     "flows.play without a display": (("-m", "flows.play"), 2),
 }
 #: The environment of every case: no display (so `flows.play` answers that it has none rather than opening one).

@@ -37,6 +37,7 @@ from zarr.core.buffer import default_buffer_prototype
 from zarr.storage import MemoryStore
 
 from dynplan.data.chunks import COMPRESSORS, read
+from dynplan.files import sha256_file
 from dynplan.logs.reader import LogError, read_episode_log
 from dynplan.world import DEFAULT_WORLD, world
 
@@ -129,14 +130,6 @@ class LogInfo:
     @property
     def name(self) -> str:
         return Path(self.path).name
-
-
-def sha256_file(path: str | os.PathLike) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as stream:
-        for block in iter(lambda: stream.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def inspect_for_store(path: str | os.PathLike) -> LogInfo:

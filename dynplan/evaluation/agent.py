@@ -9,7 +9,7 @@ one spec: `for_case` gives each case's own (its technique, configuration, horizo
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from pydantic import Field, field_validator, model_validator
 
@@ -18,18 +18,19 @@ from dynplan.env.config import RoadConfig
 from dynplan.env.road import World
 from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, Technique, learned_technique, technique
 from dynplan.models.caution import Caution
-from dynplan.models.checkpoint import CheckpointError
 from dynplan.models.device import check_device
 from dynplan.models.registry import caution_for, models_of, world_model_spec
-from dynplan.models.world_model import world_model_parts, world_model_paths
+from dynplan.planning.config import MCTSConfig
 from dynplan.planning.forward import ForwardModel
-from dynplan.planning.mcts import MCTSConfig, MCTSPlanner, RandomPlanner
 from dynplan.world import DEFAULT_WORLD
+
+if TYPE_CHECKING:  # the search compiles with numba and the world model needs torch: imported where they are used
+    from dynplan.planning.mcts import MCTSPlanner, RandomPlanner
 
 #: The technique name of a learned world model with the spec's own `samples` and `futures`.
 LEARNED = "model"
 
-Planner = MCTSPlanner | RandomPlanner
+Planner: TypeAlias = "MCTSPlanner | RandomPlanner"
 
 
 class AgentSpec(Config):
@@ -115,6 +116,10 @@ class AgentSpec(Config):
         """Check and load (and cache) a learned agent's checkpoints before anything plays: a CheckpointError names
         the file that is missing, damaged, of the wrong shapes, non-finite, unlike its model card or another
         configuration's, or whose tokenizer cannot take the agent's caution."""
+        from dynplan.models.checkpoint import CheckpointError
+        from dynplan.models.weights import world_model_paths
+        from dynplan.models.world_model import world_model_parts
+
         if self.plans_with.world_model:
             paths = world_model_paths(self.model, self.model_dir)
             tokenizer, _ = world_model_parts(paths, self.model)
@@ -130,6 +135,8 @@ class AgentSpec(Config):
 
     def planner(self, agent_speed: float, max_steps: int, seed: int | None = None) -> Planner:
         """The planner at `agent_speed` for an episode of `max_steps`, seeded by `seed` (default: the spec's)."""
+        from dynplan.planning.mcts import MCTSPlanner, RandomPlanner
+
         seed = self.seed if seed is None else seed
         if not self.plans_with.search:
             return RandomPlanner(seed)

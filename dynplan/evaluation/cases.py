@@ -12,7 +12,7 @@ from dynplan.config import Config
 from dynplan.env.config import RoadConfig
 from dynplan.evaluation.techniques import technique
 from dynplan.models.registry import models_of, world_model_spec
-from dynplan.planning.mcts import MCTSConfig
+from dynplan.planning.config import MCTSConfig
 from dynplan.world import DEFAULT_WORLD
 
 

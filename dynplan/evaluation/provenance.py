@@ -7,13 +7,12 @@ import os
 from pathlib import Path
 
 from dynplan.data.collect import log_path
-from dynplan.data.store import sha256_file
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import Case
 from dynplan.evaluation.store import Run
-from dynplan.models.checkpoint import weights_sha256
+from dynplan.files import sha256_file
 from dynplan.models.registry import caution_for
-from dynplan.models.world_model import world_model_paths
+from dynplan.models.weights import weights_sha256, world_model_paths
 
 #: The checkout: paths inside it are recorded relative to it, so a manifest reads the same on every machine.
 _ROOT = Path(__file__).resolve().parents[2]

@@ -11,6 +11,7 @@ import os
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -26,8 +27,10 @@ from dynplan.logs.recording import read_recorded_log
 from dynplan.logs.writer import write_episode_log
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import Prediction
-from dynplan.planning.mcts import Decision
 from dynplan.render import error_image, side_by_side, write_gif
+
+if TYPE_CHECKING:
+    from dynplan.planning.mcts import Decision
 
 
 def planners() -> list[str]:

@@ -11,15 +11,15 @@ from dynplan.lazy import lazy_names
 #: Each public name by its module, imported when first used (`dynplan.lazy`).
 _PUBLIC = {
     "LearnedWorldModel": "dynplan.models.world_model",
-    "PRESETS": "dynplan.models.vqvae",
+    "PRESETS": "dynplan.models.configs",
     "VQVAE": "dynplan.models.vqvae",
-    "VQVAEConfig": "dynplan.models.vqvae",
-    "WEIGHTS": "dynplan.models.checkpoint",
+    "VQVAEConfig": "dynplan.models.configs",
+    "WEIGHTS": "dynplan.models.weights",
     "WORLD_MODELS": "dynplan.models.registry",
     "WorldModelSpec": "dynplan.models.registry",
     "load_vqvae": "dynplan.models.world_model",
     "load_world_model": "dynplan.models.world_model",
-    "pretrained_path": "dynplan.models.checkpoint",
+    "pretrained_path": "dynplan.models.weights",
     "register_world_model": "dynplan.models.registry",
     "world_model_spec": "dynplan.models.registry",
 }

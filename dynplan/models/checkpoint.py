@@ -3,7 +3,6 @@ stages' loaders. Training writes through `save`; everything that reads weights r
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import os
@@ -14,11 +13,9 @@ from typing import Any
 import torch
 
 from dynplan.cli import InputError
-from dynplan.data.store import sha256_file
 from dynplan.files import atomic_path
+from dynplan.models.weights import pretrained_path, weights_sha256
 
-#: Where the committed, pretrained weights live: `<stage>-<configuration>.pt`, each with its model card `.json`.
-WEIGHTS = Path(__file__).parent / "weights"
 #: The `kind` a checkpoint of each stage records.
 VQVAE_KIND = "vqvae"
 PIXELCNN_KIND = "pixelcnn"
@@ -86,15 +83,11 @@ def load(path: str | os.PathLike, kind: str, config: dict | None = None) -> dict
     return state
 
 
-def digest(*parts: Any) -> str:
-    """A stable hex key of JSON-serialisable parts (configs, fingerprints, code versions)."""
-    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()
-
-
 def module_shapes(kind: str, config: Mapping) -> dict[str, tuple[int, ...]]:
     """The tensors (name → shape) a model of `kind` built from `config` holds: built on the meta device, so
     nothing is allocated or initialised. An invalid config is a ConfigError."""
-    from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+    from dynplan.models.configs import PixelCNNConfig
+    from dynplan.models.pixelcnn import ConditionalPixelCNN
     from dynplan.models.vqvae import VQVAE
 
     with torch.device("meta"):
@@ -263,35 +256,13 @@ def load_vqvae_checkpoint(path: str | os.PathLike, config=None, configuration: s
 
 def load_pixelcnn_checkpoint(path: str | os.PathLike, config=None, configuration: str | None = None):
     """A PixelCNN prior from a checkpoint (final or latest), in eval mode, checked as `load_vqvae_checkpoint`'s."""
-    from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig
+    from dynplan.models.configs import PixelCNNConfig
+    from dynplan.models.pixelcnn import ConditionalPixelCNN
 
     state = verify(path, PIXELCNN_KIND, None if config is None else config.model_dump(), configuration)
     model = ConditionalPixelCNN(PixelCNNConfig(**state["config"]))
     model.load_state_dict(state["model"])
     return model.eval()
-
-
-def pretrained_path(stage: str, model: str) -> Path:
-    """Path of the committed weights of `stage` ("vqvae" or "pixelcnn") for the configuration `model` (its
-    registry entry names them; `<stage>-<model>.pt` for a configuration without committed weights, which then
-    does not exist)."""
-    from dynplan.models.registry import is_world_model, world_model_spec
-
-    if not is_world_model(model):
-        return WEIGHTS / f"{stage}-{model}.pt"
-    spec = world_model_spec(model)
-    return (spec.weights_dir or WEIGHTS) / spec.weights.get(stage, f"{stage}-{model}.pt")
-
-
-@functools.cache
-def _sha256(path: str, mtime_ns: int, size: int) -> str:
-    return sha256_file(path)  # cached per version of the file (the arguments after the path)
-
-
-def weights_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 of a weights file, computed once per version of the file (path, modification time, size)."""
-    stat = os.stat(path)
-    return _sha256(str(Path(path).resolve()), stat.st_mtime_ns, stat.st_size)
 
 
 #: (kind, SHA-256 of the file) → the loaded model: one copy per content, however many paths or callers name it.

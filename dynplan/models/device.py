@@ -5,13 +5,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-import torch
-
 
 @contextmanager
 def one_thread() -> Iterator[None]:
     """Within the block torch runs on one thread: the same sums whatever the caller's threads and batch, so a result
     replays exactly (on two threads a convolution over an odd batch of frames splits its sums otherwise)."""
+    import torch
+
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -21,7 +21,12 @@ def one_thread() -> Iterator[None]:
 
 
 def check_device(name: str) -> str:
-    """`name` as torch spells the device, or a ValueError naming it and what is available."""
+    """`name` as torch spells the device, or a ValueError naming it and what is available (the CPU without
+    importing torch, so that a command checks its default at once)."""
+    if name == "cpu":
+        return name
+    import torch
+
     try:
         device = torch.device(name)
     except (RuntimeError, TypeError):

@@ -15,69 +15,9 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from pydantic import Field, model_validator
 from torch import nn
 
-from dynplan.config import Config
-
-
-class PixelCNNConfig(Config):
-    """Size of the prior; `PIXELCNN_PRESETS` holds the named ones."""
-
-    name: str = Field("custom", description="preset name, recorded in checkpoints")
-    codebook_size: int = Field(512, ge=2, le=65536, description="K: code values (the VQ-VAE's codebook size)")
-    context: int = Field(4, ge=1, le=16, description="previous code grids conditioned on")
-    channels: int = Field(64, ge=4, le=1024, description="channels of both stacks")
-    layers: int = Field(8, ge=2, le=64, description="gated layers (the first is masked A)")
-    first_kernel: int = Field(7, ge=3, le=15, description="kernel of the first layer (odd)")
-    kernel: int = Field(3, ge=3, le=15, description="kernel of the other layers (odd)")
-    embed_dim: int = Field(32, ge=1, le=512, description="embedding size of one code")
-    condition_channels: int = Field(64, ge=1, le=1024, description="channels of the conditioning map")
-    learning_rate: float = Field(3e-4, gt=0, le=1.0, description="Adam learning rate")
-    learning_rate_halflife: int | None = Field(
-        None, ge=1, description="windows after which the learning rate halves (exponential decay; None: constant)"
-    )
-    batch_size: int = Field(64, ge=1, le=8192, description="windows per batch")
-    codebook_init: bool = Field(
-        False, description="start both code embeddings from the tokenizer's codebook (else random)"
-    )
-    condition_width: int = Field(
-        3, ge=3, le=31, description="columns of the conditioning convolutions' kernels (odd; rows: 3)"
-    )
-    strip_rows: int | None = Field(
-        None,
-        ge=1,
-        le=64,
-        description="a world of lanes: each grid is cut into strips of this many code rows, each "
-        "modelled (and generated) as a grid of its own, all strips of a grid at once (None: whole grids)",
-    )
-
-    _neutral = {"learning_rate_halflife": None, "codebook_init": False, "condition_width": 3, "strip_rows": None}
-
-    @model_validator(mode="after")
-    def _check_kernels(self) -> PixelCNNConfig:
-        if self.condition_width % 2 != 1:
-            raise ValueError(f"condition_width must be odd, got {self.condition_width}")
-        return self
-
-
-PIXELCNN_PRESETS: dict[str, PixelCNNConfig] = {
-    # Priors for the two tokenizers (K follows each one's codebook), sized so that planning samples them fast on a
-    # CPU. The paper's: 64 channels × 8 layers, batches of 256 at rate 1e-3 (trained on a GPU, `--device`).
-    "paper": PixelCNNConfig(name="paper", codebook_size=512, batch_size=256, learning_rate=1e-3),
-    # The default's 12 × 12 grid has 4× the positions and an 8× wider head: 32 channels and a 5 × 5 first kernel
-    # train 2× faster per window on a CPU than 64 and 7 and learn as fast per minute; embeddings started from the
-    # codebook reach 15.6 % code accuracy in 4 minutes against 11.2 % from random (docs/design.md, prior).
-    "default": PixelCNNConfig(
-        name="default",
-        codebook_size=4096,
-        channels=32,
-        first_kernel=5,
-        codebook_init=True,
-        batch_size=64,
-        learning_rate=1e-3,
-    ),
-}
+from dynplan.models.configs import PixelCNNConfig
 
 
 class GatedLayer(nn.Module):

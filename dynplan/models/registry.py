@@ -2,7 +2,7 @@
 
 A configuration names everything that makes one learned world model: the VQ-VAE tokenizer's config, the
 PixelCNN prior's, the caution of the frames the planner sees, the training budgets its committed weights were
-trained with (fields of `dynplan.training.loop.TrainBudget`) and the names of those weights in its weights
+trained with (fields of `dynplan.training.budget.TrainBudget`) and the names of those weights in its weights
 folder. Every command, preset and loader looks a configuration up here, so adding one is one `register_world_model`
 call (docs/extending.md). `paper` is the paper's (docs/protocol.md §2) and `default` ours, the road's; another
 world's configurations are registered by its `World.models` module, imported the first time a configuration of
@@ -17,8 +17,7 @@ from importlib import import_module
 from pathlib import Path
 
 from dynplan.models.caution import Caution
-from dynplan.models.pixelcnn import PIXELCNN_PRESETS, PixelCNNConfig
-from dynplan.models.vqvae import PRESETS, VQVAEConfig
+from dynplan.models.configs import PIXELCNN_PRESETS, PRESETS, PixelCNNConfig, VQVAEConfig
 from dynplan.world import DEFAULT_WORLD, world, world_names
 
 STAGES = ("vqvae", "pixelcnn")

@@ -2,7 +2,7 @@
 
 Encoder: 4 × 4 convolutions (stride 2 halves the grid, stride 1 keeps it), optional residual blocks, a 1 × 1
 projection to latent_dim channels; vector quantization with one codebook; a mirrored decoder of transposed
-convolutions ending in a pixel likelihood (`likelihood.py`). The paper's configuration is `PRESETS["paper"]`:
+convolutions ending in a pixel likelihood (`likelihood.py`). The paper's configuration is `configs.PRESETS["paper"]`:
 channels 42, 32, 16, 16, strides 2, 2, 2, 1 (6 × 6 codes), K = 512, DMoL with 10 components, codebook loss.
 """
 
@@ -10,20 +10,18 @@ from __future__ import annotations
 
 from collections.abc import Collection
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 import torch
 import torch.nn.functional as F
-from pydantic import Field, model_validator
 from torch import nn
 
-from dynplan.config import Config, ConfigError
 from dynplan.data.patches import tiles
 from dynplan.env.config import GOAL_VALUE
+from dynplan.models.configs import VQVAEConfig
 from dynplan.models.likelihood import Categorical, DMoL, to_unit, value_index
 from dynplan.models.quantize import VectorQuantizer
-from dynplan.world import DEFAULT_WORLD, world
+from dynplan.world import world
 
 #: Frames the decoder decodes in one pass at inference: the paper's convolutional decoder is faster per frame in
 #: blocks of about this many than over hundreds at once, whose activations leave the caches.
@@ -33,97 +31,6 @@ DECODE_ROWS = 64
 SHARPNESS_GRID = torch.logspace(-1, 2, 61)
 
 
-class VQVAEConfig(Config):
-    """Architecture and optimisation of a VQ-VAE; `PRESETS` holds the named ones."""
-
-    name: str = Field("custom", description="preset name, recorded in checkpoints")
-    world: str = Field(DEFAULT_WORLD, description="the world whose frames it encodes (its pixel values)")
-    height: int = Field(48, ge=8, le=512, description="frame rows")
-    width: int = Field(48, ge=8, le=512, description="frame columns")
-    pad_top: int = Field(
-        0,
-        ge=0,
-        le=64,
-        description="rows of the world's background added above a frame before it is encoded (and "
-        "dropped after decoding), so that the code grid's rows line up with the world's lanes",
-    )
-    channels: tuple[int, ...] = Field((42, 32, 16, 16), description="encoder conv widths, input side first")
-    strides: tuple[int, ...] = Field((2, 2, 2, 1), description="encoder conv strides (1 or 2 each)")
-    residual_blocks: int = Field(0, ge=0, le=16, description="residual blocks at the code resolution")
-    latent_dim: int = Field(16, ge=1, le=1024, description="channels per code")
-    codebook_size: int = Field(512, ge=2, le=65536, description="K, entries per codebook")
-    likelihood: Literal["dmol", "categorical"] = Field("dmol", description="decoder pixel likelihood")
-    n_mixtures: int = Field(10, ge=1, le=64, description="DMoL components")
-    commitment: float = Field(0.25, ge=0.0, le=10.0, description="commitment loss weight β")
-    goal_weight: float = Field(1.0, gt=0.0, le=1000.0, description="loss weight of goal pixels")
-    learning_rate: float = Field(1e-3, gt=0.0, le=1.0, description="Adam learning rate")
-    batch_size: int = Field(32, ge=1, le=4096, description="frames per batch")
-    local: bool = Field(
-        False,
-        description="patch-local codes: kernels equal to strides and 1 × 1 residual blocks, so each code "
-        "depends only on its own patch and decodes to that patch alone",
-    )
-    codebook_fit: Literal["learned", "contents"] = Field(
-        "learned",
-        description="learned: the usual VQ-VAE training on frames; contents (patch-local only): train encoder and "
-        "decoder as an autoencoder of the distinct patch contents, and set the codebook to the encoder's outputs "
-        "of the K most frequent ones, so that each of them has a code of its own and decodes exactly",
-    )
-
-    calibrate_decoder: bool = Field(
-        False,
-        description="contents fit: after each codebook fit, scale each code's decoder logits by the temperature "
-        "that maximises the likelihood of the training patches (as often as they occur) given their codes, so "
-        "that decoder samples are as certain as the data make them (mid-point frames are unchanged)",
-    )
-
-    _neutral = {
-        "goal_weight": 1.0,
-        "local": False,
-        "codebook_fit": "learned",
-        "calibrate_decoder": False,
-        "world": DEFAULT_WORLD,
-        "pad_top": 0,
-    }
-
-    @model_validator(mode="after")
-    def _check_shape(self) -> VQVAEConfig:
-        if len(self.channels) != len(self.strides) or not self.channels:
-            raise ValueError("channels and strides must be non-empty and of the same length")
-        if any(s not in (1, 2) for s in self.strides):
-            raise ValueError(f"strides must each be 1 or 2, got {self.strides}")
-        try:
-            world(self.world)
-        except ConfigError as error:
-            raise ValueError(str(error)) from None
-        if self.world != DEFAULT_WORLD and self.likelihood == "dmol":
-            raise ValueError(
-                f"likelihood 'dmol' snaps to the road's pixel values; the {self.world} world needs 'categorical'"
-            )
-        scale = 2 ** sum(s == 2 for s in self.strides)
-        if (self.height + self.pad_top) % scale or self.width % scale:
-            raise ValueError(
-                f"frame {self.height}×{self.width} (padded by {self.pad_top} rows) is not divisible by "
-                f"the encoder's stride {scale}"
-            )
-        if self.codebook_fit == "contents" and not self.local:
-            raise ValueError("codebook_fit='contents' needs local=True")
-        if self.calibrate_decoder and (self.codebook_fit != "contents" or self.likelihood != "categorical"):
-            raise ValueError("calibrate_decoder needs codebook_fit='contents' and likelihood='categorical'")
-        return self
-
-    @property
-    def grid(self) -> tuple[int, int]:
-        """(h, w) of the code grid."""
-        scale = 2 ** sum(s == 2 for s in self.strides)
-        return (self.height + self.pad_top) // scale, self.width // scale
-
-    @property
-    def values(self) -> tuple[int, ...]:
-        """The pixel values of the world's frames, ascending."""
-        return world(self.world).values()
-
-
 def padded(frames: np.ndarray, config: VQVAEConfig) -> np.ndarray:
     """uint8 frames (..., height, W) with `config.pad_top` rows of the world's background above (row 0 is the
     bottom), as the tokenizer encodes them."""
@@ -131,33 +38,6 @@ def padded(frames: np.ndarray, config: VQVAEConfig) -> np.ndarray:
         return frames
     pad = np.full((*frames.shape[:-2], config.pad_top, frames.shape[-1]), world(config.world).background, np.uint8)
     return np.concatenate([frames, pad], axis=-2)
-
-
-PRESETS: dict[str, VQVAEConfig] = {
-    # The paper's model (docs/protocol.md §2), as published: 6 × 6 codes from a 512-entry codebook, DMoL likelihood.
-    "paper": VQVAEConfig(name="paper"),
-    # Ours: a 12 × 12 grid of patch-local codes, one per 4 × 4 patch, from 4096 entries, a categorical likelihood
-    # over the world's 7 values. The codebook is content-fitted: encoder and decoder are trained as an autoencoder
-    # of the distinct patch contents and each of the 4096 most frequent (99.98 % of patches) gets a code of its own;
-    # each code's decoder temperature is then calibrated to how often the patches occur. Goal pixels weigh 10× in
-    # the loss. The committed weights are run `vqvae-default-1de9881c4f7e` (docs/design.md, tokenizer), whose
-    # recorded config also names the training-only settings of the code that trained it (`VQVAE.from_checkpoint`).
-    "default": VQVAEConfig(
-        name="default",
-        channels=(32, 64),
-        strides=(2, 2),
-        residual_blocks=2,
-        latent_dim=32,
-        codebook_size=4096,
-        likelihood="categorical",
-        goal_weight=10.0,
-        learning_rate=1e-3,
-        batch_size=1024,
-        local=True,
-        codebook_fit="contents",
-        calibrate_decoder=True,
-    ),
-}
 
 
 def _conv(c_in: int, c_out: int, stride: int, local: bool = False) -> nn.Module:

@@ -29,13 +29,14 @@ from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models import checkpoint
 from dynplan.models.caution import Caution, merge_samples, unsure_obstacles, widen_obstacles
 from dynplan.models.chain import ChainSpec, chain, keeps_greedy
-from dynplan.models.checkpoint import CheckpointError, cached, pretrained_path
+from dynplan.models.checkpoint import CheckpointError, cached
 from dynplan.models.device import check_device, one_thread
 from dynplan.models.encoding import encode_contexts
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.models.registry import WORLD_MODELS, caution_for, world_model_spec
 from dynplan.models.streams import observation_stream
 from dynplan.models.vqvae import VQVAE
+from dynplan.models.weights import pretrained_path, world_model_paths
 from dynplan.planning.forward import ForwardModel, Prediction
 from dynplan.world import DEFAULT_WORLD
 
@@ -324,14 +325,6 @@ def _sampled_futures(
             for e in members:
                 out[e] = futures[: models[e].futures, : ks[e]]
     return out
-
-
-def world_model_paths(model: str, model_dir: str | os.PathLike | None = None) -> tuple[Path, Path]:
-    """The (VQ-VAE, PixelCNN) checkpoints of configuration `model`: `model_dir/<model>/{vqvae,pixelcnn}.pt` when a
-    pipeline trained its own, else the committed pretrained ones."""
-    if model_dir is not None:
-        return Path(model_dir) / model / "vqvae.pt", Path(model_dir) / model / "pixelcnn.pt"
-    return pretrained_path("vqvae", model), pretrained_path("pixelcnn", model)
 
 
 def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple:

@@ -23,10 +23,9 @@ from pydantic import Field, SerializeAsAny, model_validator
 from dynplan.config import Config
 from dynplan.evaluation.cases import AGENT_SPEEDS, ROLLOUT_STEPS
 from dynplan.evaluation.techniques import TECHNIQUES
-from dynplan.models.pixelcnn import PixelCNNConfig
+from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
 from dynplan.models.registry import models_of, world_model_spec
-from dynplan.models.vqvae import VQVAEConfig
-from dynplan.training.loop import TrainBudget
+from dynplan.training.budget import TrainBudget
 from dynplan.world import DEFAULT_WORLD, world, world_names
 
 

@@ -6,7 +6,7 @@ from dynplan.lazy import lazy_names
 _PUBLIC = {
     "EpisodeResult": "dynplan.planning.episode",
     "ForwardModel": "dynplan.planning.forward",
-    "MCTSConfig": "dynplan.planning.mcts",
+    "MCTSConfig": "dynplan.planning.config",
     "MCTSPlanner": "dynplan.planning.mcts",
     "OracleModel": "dynplan.planning.forward",
     "Prediction": "dynplan.planning.forward",

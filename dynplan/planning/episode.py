@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -15,10 +16,12 @@ from dynplan.env.road_env import RoadEnv
 from dynplan.logs.format import AgentTrack
 from dynplan.planning.forward import ForwardModel, Prediction
 from dynplan.planning.lockstep import step_together
-from dynplan.planning.mcts import Decision, MCTSPlanner, RandomPlanner
+
+if TYPE_CHECKING:  # the search compiles with numba: its module is imported by whoever builds a planner
+    from dynplan.planning.mcts import Decision, MCTSPlanner, RandomPlanner
 
 #: Called after each decision with (t, position, prediction, decision) — e.g. to record imagined frames.
-DecisionHook = Callable[[int, np.ndarray, Prediction | None, Decision], None]
+DecisionHook = Callable[[int, np.ndarray, "Prediction | None", "Decision"], None]
 
 
 @dataclass
@@ -54,7 +57,7 @@ def run_episode(
 
 
 #: Called after each decision of episode i with (i, t, position, prediction, decision).
-BatchDecisionHook = Callable[[int, int, np.ndarray, Prediction | None, Decision], None]
+BatchDecisionHook = Callable[[int, int, np.ndarray, "Prediction | None", "Decision"], None]
 
 
 @dataclass

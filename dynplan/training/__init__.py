@@ -5,7 +5,7 @@ from dynplan.lazy import lazy_names
 
 #: Each public name by its module, imported when first used (`dynplan.lazy`).
 _PUBLIC = {
-    "TrainBudget": "dynplan.training.loop",
+    "TrainBudget": "dynplan.training.budget",
     "build_codes": "dynplan.training.codes",
     "train_pixelcnn": "dynplan.training.pixelcnn",
     "train_vqvae": "dynplan.training.vqvae",

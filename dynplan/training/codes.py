@@ -19,7 +19,8 @@ import torch
 import zarr
 
 from dynplan.data.chunks import COMPRESSORS, commit_rows, staged
-from dynplan.data.store import committed_checksums, episodes_digest, sha256_file
+from dynplan.data.store import committed_checksums, episodes_digest
+from dynplan.files import sha256_file
 from dynplan.models.checkpoint import VQVAE_KIND, cached
 from dynplan.progress import progress
 

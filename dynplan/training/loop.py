@@ -20,42 +20,10 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from pydantic import Field, field_validator
 
-from dynplan.config import Config
 from dynplan.files import write_bytes_atomic
 from dynplan.models import checkpoint
-
-
-class TrainBudget(Config):
-    """How long to train: epochs of `steps_per_epoch` batches, optionally capped in wall-clock minutes."""
-
-    epochs: int = Field(20, ge=1, le=100_000, description="epochs to train (in total, counting resumed ones)")
-    steps_per_epoch: int = Field(500, ge=1, le=1_000_000, description="batches per epoch")
-    val_frames: int = Field(2000, ge=1, le=1_000_000, description="validation items scored after each epoch")
-    max_minutes: float | None = Field(None, gt=0, description="stop (resumably) after this much wall time")
-    threads: int | None = Field(None, ge=1, le=256, description="torch threads (default: all cores)")
-    seed: int = Field(0, ge=0, description="seed of initialisation and batch order")
-    init_from: str | None = Field(None, description="checkpoint whose model weights start the run (fine-tuning)")
-    device: str | None = Field(None, description="torch device to train on, e.g. 'cuda' (default: the CPU)")
-
-    _neutral = {"init_from": None, "device": None}
-
-    @field_validator("device")
-    @classmethod
-    def _known_device(cls, value: str | None) -> str | None:
-        if value is not None:
-            try:
-                device = torch.device(value)
-            except RuntimeError:
-                raise ValueError(f"unknown torch device {value!r} (e.g. 'cpu', 'cuda', 'cuda:1')") from None
-            if device.type == "cuda" and not torch.cuda.is_available():
-                raise ValueError(f"device {value!r}: this torch build sees no CUDA device (torch {torch.__version__})")
-        return value
-
-    @property
-    def torch_device(self) -> torch.device:
-        return torch.device(self.device or "cpu")
+from dynplan.training.budget import TrainBudget
 
 
 @dataclass

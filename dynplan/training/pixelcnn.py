@@ -20,13 +20,14 @@ import zarr
 from dynplan.data.datasets import WindowDataset
 from dynplan.data.history import context_indices, first_target
 from dynplan.models.checkpoint import PIXELCNN_KIND, load_vqvae_checkpoint
+from dynplan.models.configs import PixelCNNConfig
 from dynplan.models.generation import generate_fast
 from dynplan.models.metrics import frame_errors
-from dynplan.models.pixelcnn import ConditionalPixelCNN, PixelCNNConfig, from_strips, to_strips
+from dynplan.models.pixelcnn import ConditionalPixelCNN, from_strips, to_strips
 from dynplan.models.vqvae import VQVAE
 from dynplan.render import comparison_columns
 from dynplan.training import loop
-from dynplan.training.loop import TrainBudget
+from dynplan.training.budget import TrainBudget
 
 KIND = PIXELCNN_KIND
 #: Part of a training run's cache key; bump it when a change would change what training produces.

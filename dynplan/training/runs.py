@@ -11,8 +11,9 @@ from pathlib import Path
 
 import zarr
 
-from dynplan.data.store import fingerprint, sha256_file
-from dynplan.models.checkpoint import digest
+from dynplan.config import digest
+from dynplan.data.store import fingerprint
+from dynplan.files import sha256_file
 from dynplan.training.pixelcnn import CODE_VERSION as PIXELCNN_CODE_VERSION
 from dynplan.training.vqvae import CODE_VERSION as VQVAE_CODE_VERSION
 

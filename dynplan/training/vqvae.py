@@ -18,10 +18,11 @@ import torch
 from dynplan.data.datasets import FrameDataset
 from dynplan.data.patches import distinct_patches
 from dynplan.models.checkpoint import VQVAE_KIND
+from dynplan.models.configs import VQVAEConfig
 from dynplan.models.metrics import frame_errors
-from dynplan.models.vqvae import SHARPNESS_GRID, VQVAE, VQVAEConfig, padded
+from dynplan.models.vqvae import SHARPNESS_GRID, VQVAE, padded
 from dynplan.training import loop
-from dynplan.training.loop import TrainBudget
+from dynplan.training.budget import TrainBudget
 
 KIND = VQVAE_KIND
 #: Part of a training run's cache key. Bump it whenever a change to the model, likelihood, quantizer or this

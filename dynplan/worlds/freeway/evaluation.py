@@ -23,7 +23,6 @@ from pydantic import Field
 
 from dynplan.config import Config
 from dynplan.evaluation.store import Run, code_version
-from dynplan.models.world_model import load_world_model
 from dynplan.planning.forward import ForwardModel, Prediction
 from dynplan.planning.lockstep import step_together
 from dynplan.worlds.freeway import WORLD
@@ -113,6 +112,8 @@ MODEL = "freeway"
 def world_model_for(technique: str, model_dir: str | os.PathLike | None = None) -> ForwardModel | None:
     """The world model `technique` plans with: for `learned`, Freeway's (trained into `model_dir`, holding
     `vqvae.pt` and `pixelcnn.pt`; else its committed weights); None for the others."""
+    from dynplan.models.world_model import load_world_model  # torch: imported by the work, not by `--help`
+
     return load_world_model(model_dir, MODEL) if technique == "learned" else None
 
 

@@ -12,9 +12,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dynplan.models.pixelcnn import PixelCNNConfig
+from dynplan.models.configs import PRESETS, PixelCNNConfig, VQVAEConfig
 from dynplan.models.registry import WORLD_MODELS, WorldModelSpec, register_world_model
-from dynplan.models.vqvae import PRESETS, VQVAEConfig
 
 #: The configuration's name: the world's own.
 NAME = "freeway"

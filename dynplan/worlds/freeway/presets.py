@@ -15,7 +15,7 @@ from pydantic import Field, model_validator
 
 from dynplan.config import Config
 from dynplan.pipeline.presets import SMOKE_BUDGET, PipelinePreset, StagePlan
-from dynplan.training.loop import TrainBudget
+from dynplan.training.budget import TrainBudget
 from dynplan.worlds.freeway.evaluation import TECHNIQUES, FreewayPlan
 from dynplan.worlds.freeway.models import CONFIGURATION
 from dynplan.worlds.freeway.search import ChickenSearch

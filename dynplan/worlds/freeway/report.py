@@ -11,10 +11,9 @@ import json
 from itertools import islice
 from pathlib import Path
 
-from dynplan.data.store import sha256_file
+from dynplan.config import digest
 from dynplan.evaluation.store import StoreError, shown
-from dynplan.files import write_bytes_atomic
-from dynplan.models.checkpoint import digest
+from dynplan.files import sha256_file, write_bytes_atomic
 from dynplan.worlds.freeway import evaluation as freeway
 from dynplan.worlds.freeway.commands import FreewayEvaluation
 from dynplan.worlds.freeway.game import record_mode

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from pydantic import Field
@@ -23,7 +24,6 @@ from dynplan.progress import progress
 from dynplan.render import write_gif
 from dynplan.worlds.minigrid.evaluation import TECHNIQUES, Player, evaluate_episodes, summarise
 from dynplan.worlds.minigrid.grid import MiniGridConfig, record_world
-from dynplan.worlds.minigrid.imagine import MiniGridModel
 from dynplan.worlds.minigrid.models import NAME
 from dynplan.worlds.minigrid.play import HORIZONS, PLANNERS, MiniGridPlay, play_out
 from dynplan.worlds.minigrid.results import LEARNED_SAMPLES, RUNS, replay_check
@@ -32,6 +32,17 @@ from dynplan.worlds.minigrid.search import GridSearch
 RESULTS_DIR = "datasets/results/minigrid"
 #: The first room of the evaluation: rooms no setting was chosen on (the planner's validation rooms are 3,000,000…).
 EVAL_SEED = 1_000_000
+
+if TYPE_CHECKING:
+    from dynplan.worlds.minigrid.imagine import MiniGridModel
+
+
+def _learned_model(model_dir: str | os.PathLike | None) -> MiniGridModel:
+    """The learned world model in `model_dir` (None: the committed weights), its checkpoints checked; torch is
+    imported here, when a command first plays with it, not by `--help`."""
+    from dynplan.worlds.minigrid.imagine import MiniGridModel
+
+    return MiniGridModel(model_dir)
 
 
 class MiniGridEvaluation(Config):
@@ -59,7 +70,7 @@ class MiniGridEvaluation(Config):
     def player(self, technique: str) -> Player:
         """What plays the technique's episodes: the search, the walk's samples, the world model when it is learned
         (the random numbers are each episode's own)."""
-        model = MiniGridModel(self.model_dir) if technique in LEARNED_SAMPLES else None
+        model = _learned_model(self.model_dir) if technique in LEARNED_SAMPLES else None
         return Player(self.search, self.samples, np.random.default_rng(0), model)
 
     def settings(self) -> dict:
@@ -112,7 +123,7 @@ class Evaluate:
             model_dir=args.model_dir,
         )
         if request.learned:
-            MiniGridModel(request.model_dir)  # its checkpoints checked now, not in the first task
+            _learned_model(request.model_dir)  # its checkpoints checked now, not in the first task
         return request
 
     def recordings(self, request: MiniGridEvaluation) -> None:
@@ -199,7 +210,7 @@ class Play:
         parser.add_argument("--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), default=None, help=models)
 
     def state(self, args: argparse.Namespace) -> MiniGridPlay:
-        model = MiniGridModel(args.model_dir) if args.technique in LEARNED_SAMPLES else None
+        model = _learned_model(args.model_dir) if args.technique in LEARNED_SAMPLES else None
         room = record_world(MiniGridConfig(), args.seed)
         return MiniGridPlay(room, args.technique, args.horizon, args.samples, model)
 
@@ -259,13 +270,13 @@ class Replay:
             check_output(args.gif, "--gif", "file", inputs=(args.log, out))
         replayable(args.log)
         if args.technique in LEARNED_SAMPLES:
-            MiniGridModel(args.model_dir)  # its checkpoints checked now
+            _learned_model(args.model_dir)  # its checkpoints checked now
         fields = ("log", "technique", "horizon", "samples", "model_dir", "gif")
         return MiniGridReplay(out=out, **{name: getattr(args, name) for name in fields})
 
     def replay(self, request: MiniGridReplay) -> dict:
         room = replayable(request.log).world()
-        model = MiniGridModel(request.model_dir) if request.technique in LEARNED_SAMPLES else None
+        model = _learned_model(request.model_dir) if request.technique in LEARNED_SAMPLES else None
         state = MiniGridPlay(room, request.technique, request.horizon, request.samples, model)
         pictures = play_out(state, len(room.frames))
         state.record(request.out)

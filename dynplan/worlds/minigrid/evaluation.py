@@ -11,20 +11,23 @@ from __future__ import annotations
 
 import time
 from collections.abc import Mapping, Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from dynplan.evaluation.store import Run, code_version
 from dynplan.worlds.minigrid import futures
 from dynplan.worlds.minigrid.agent import AGENT_START_POSE, Outcome, Pose, step
+from dynplan.worlds.minigrid.futures import Imagined
 from dynplan.worlds.minigrid.grid import MiniGridConfig, MiniGridWorld, record_world
-from dynplan.worlds.minigrid.imagine import Imagined, MiniGridModel
 from dynplan.worlds.minigrid.models import NAME
 from dynplan.worlds.minigrid.results import LEARNED_SAMPLES, RUNS, TECHNIQUE_NAMES, encode_actions
 from dynplan.worlds.minigrid.search import BALL, GridSearch, layout_of, plan_chances
 
 TECHNIQUES = TECHNIQUE_NAMES
+
+if TYPE_CHECKING:  # the learned model needs torch: built by the command that plays with it
+    from dynplan.worlds.minigrid.imagine import MiniGridModel
 
 
 class Player(NamedTuple):

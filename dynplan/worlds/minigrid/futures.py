@@ -10,6 +10,8 @@ from the frame now (the first) over K steps.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from dynplan.worlds.minigrid.grid import PIXEL_VALUES
@@ -82,3 +84,12 @@ def _walk_step(frame: np.ndarray, rng: np.random.Generator) -> np.ndarray:
                 frame[row, col], frame[r, c] = FLOOR, BALL
                 break
     return frame
+
+
+@dataclass(frozen=True)
+class Imagined:
+    """`samples` futures of k steps from the frame now: rooms (S, k + 1, H, W) uint8 and each cell's chance of a
+    ball (S, k + 1, H, W) float32 — the first of each the frame now (its balls certain)."""
+
+    rooms: np.ndarray
+    balls: np.ndarray

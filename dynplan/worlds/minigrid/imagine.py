@@ -9,7 +9,6 @@ estimate each cell's chance of a ball with far less noise than counting balls in
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
@@ -18,20 +17,13 @@ import torch
 from dynplan.models.chain import ChainSpec, chain
 from dynplan.models.encoding import encode_contexts
 from dynplan.models.streams import observation_stream
-from dynplan.models.world_model import world_model_parts, world_model_paths
+from dynplan.models.weights import world_model_paths
+from dynplan.models.world_model import world_model_parts
+from dynplan.worlds.minigrid.futures import Imagined
 from dynplan.worlds.minigrid.grid import PIXEL_VALUES
 from dynplan.worlds.minigrid.models import NAME
 
 BALL = PIXEL_VALUES["ball"]
-
-
-@dataclass(frozen=True)
-class Imagined:
-    """`samples` futures of k steps from the frame now: rooms (S, k + 1, H, W) uint8 and each cell's chance of a
-    ball (S, k + 1, H, W) float32 — the first of each the frame now (its balls certain)."""
-
-    rooms: np.ndarray
-    balls: np.ndarray
 
 
 class MiniGridModel:

@@ -14,9 +14,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dynplan.models.pixelcnn import PixelCNNConfig
+from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
 from dynplan.models.registry import WORLD_MODELS, WorldModelSpec, register_world_model
-from dynplan.models.vqvae import VQVAEConfig
 
 #: The configuration's name: the world's own.
 NAME = "minigrid"

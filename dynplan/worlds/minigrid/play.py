@@ -12,6 +12,7 @@ from __future__ import annotations
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,8 +22,8 @@ from dynplan.logs.writer import write_episode_log
 from dynplan.render import side_by_side
 from dynplan.worlds.minigrid.agent import AGENT_START_POSE, FORWARD, LEFT, RIGHT, Outcome, Pose, step
 from dynplan.worlds.minigrid.evaluation import TECHNIQUES, Player, belief
+from dynplan.worlds.minigrid.futures import Imagined
 from dynplan.worlds.minigrid.grid import MiniGridWorld
-from dynplan.worlds.minigrid.imagine import Imagined, MiniGridModel
 from dynplan.worlds.minigrid.results import LEARNED_SAMPLES
 from dynplan.worlds.minigrid.search import GridSearch, layout_of, plan_chances
 
@@ -31,6 +32,9 @@ HORIZONS = (3, 5, 6)
 #: Key name → the agent's action.
 ACTION_KEYS = {"a": LEFT, "left": LEFT, "d": RIGHT, "right": RIGHT, "w": FORWARD, "up": FORWARD}
 PLANNERS = tuple(t for t in TECHNIQUES if t != "random")
+
+if TYPE_CHECKING:  # the learned model needs torch: built by the command that plays with it
+    from dynplan.worlds.minigrid.imagine import MiniGridModel
 
 
 class MiniGridPlay:

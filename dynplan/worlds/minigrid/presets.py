@@ -16,7 +16,7 @@ from pydantic import Field, model_validator
 
 from dynplan.config import Config
 from dynplan.pipeline.presets import SMOKE_BUDGET, PipelinePreset, StagePlan
-from dynplan.training.loop import TrainBudget
+from dynplan.training.budget import TrainBudget
 from dynplan.worlds.minigrid.commands import EVAL_SEED
 from dynplan.worlds.minigrid.evaluation import TECHNIQUES
 from dynplan.worlds.minigrid.models import CONFIGURATION

@@ -14,15 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from dynplan.data.store import sha256_file
 from dynplan.evaluation.store import Run, StoreError, shown
-from dynplan.files import write_bytes_atomic
-from dynplan.models.world_model import world_model_paths
+from dynplan.files import sha256_file, write_bytes_atomic
+from dynplan.models.weights import world_model_paths
 from dynplan.render import write_gif
 from dynplan.worlds.minigrid.commands import MiniGridEvaluation
 from dynplan.worlds.minigrid.evaluation import summarise
 from dynplan.worlds.minigrid.grid import MiniGridConfig, record_world
-from dynplan.worlds.minigrid.imagine import MiniGridModel
 from dynplan.worlds.minigrid.models import NAME
 from dynplan.worlds.minigrid.play import MiniGridPlay, play_out
 from dynplan.worlds.minigrid.presets import MiniGridEvalPlan
@@ -49,6 +47,8 @@ def draw_episode(out: Path, model_dir: Path, plan: MiniGridEvalPlan) -> str:
     drawn = manifest.exists() and json.loads(manifest.read_text()).get("identity") == identity
     if drawn and (out / GIF_NAME).exists() and (out / LOG_NAME).exists():
         return GIF_NAME
+    from dynplan.worlds.minigrid.imagine import MiniGridModel  # torch: imported by the work, not by `--help`
+
     room = record_world(MiniGridConfig(), plan.first_seed)
     state = MiniGridPlay(room, technique, model=MiniGridModel(model_dir))
     write_gif(out / GIF_NAME, np.stack(play_out(state, GIF_STEPS)), fps=4, scale=8)

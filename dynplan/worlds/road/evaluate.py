@@ -18,7 +18,6 @@ from pydantic import Field
 from dynplan.cli import Bounded, bounded
 from dynplan.config import Config, field_help
 from dynplan.data.collect import log_path
-from dynplan.data.store import sha256_file
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.cases import (
     AGENT_SPEEDS,
@@ -30,13 +29,11 @@ from dynplan.evaluation.cases import (
     CasePlan,
     road_models,
 )
-from dynplan.evaluation.protocol import pending, run_cases
-from dynplan.evaluation.provenance import begin_run
 from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name, check_store
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.evaluation.techniques import TECHNIQUES
+from dynplan.files import sha256_file
 from dynplan.models.caution import Caution
-from dynplan.models.checkpoint import CheckpointError
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.world_parts import Recordings
@@ -117,6 +114,8 @@ class Evaluate:
     def request(self, args: argparse.Namespace) -> RoadEvaluation:
         """The evaluation the arguments ask for, every value checked by its config and each learned agent's weights
         loaded once, before any flow machinery starts."""
+        from dynplan.models.checkpoint import CheckpointError  # torch: imported by the work, not by `--help`
+
         try:
             check_run_name(args.run)
         except StoreError as error:
@@ -147,12 +146,17 @@ class Evaluate:
 
     def start(self, request: RoadEvaluation, command: str) -> list[dict]:
         """Begin (or extend) the run's manifest; the cases it does not hold yet, in lockstep batches (one job each)."""
+        from dynplan.evaluation.protocol import pending
+        from dynplan.evaluation.provenance import begin_run
+
         run, all_cases = request.store_run(), request.plan.cases()
         begin_run(run, request.role, all_cases, request.log_dir, command, request.agent)
         todo = pending(all_cases, run, request.log_dir, request.agent)
         return [{"cases": [asdict(c) for c in b], "episodes": len(b)} for b in batches(todo, request.batch)]
 
     def play(self, request: RoadEvaluation, job: dict) -> dict:
+        from dynplan.evaluation.protocol import run_cases
+
         cases = [Case(**c) for c in job["cases"]]
         rows = run_cases(cases, request.log_dir, request.store_run(), request.agent)
         return {"episodes": len(rows)}
