@@ -1,4 +1,4 @@
-"""Atomic file writes, exclusive locks between writers, and the checks an output path passes before any work.
+"""File digests, atomic writes, exclusive locks between writers, and the checks an output path passes first.
 
 A writer writes to a temporary file beside the target, then renames it over the target: a reader never sees a
 half-written file. The temporary file's name says who owns it (`.<name>.<host>.<pid>.<random>.tmp`), so a
@@ -8,6 +8,7 @@ cleanup removes only temporaries whose writer is gone (`stale_temporaries`) and 
 from __future__ import annotations
 
 import fcntl
+import hashlib
 import os
 import re
 import socket
@@ -18,6 +19,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import IO
 
 from dynplan.paths import PathError
 
@@ -79,7 +81,7 @@ def is_held(lock_path: str | os.PathLike) -> bool:
     if not thread_lock.acquire(blocking=False):
         return True
     try:
-        with open(lock_path, "a+") as lock:
+        with open(lock_path, "r+") as lock:  # no file: no holder (a holder's file goes when it releases)
             try:
                 fcntl.lockf(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
@@ -94,21 +96,14 @@ def is_held(lock_path: str | os.PathLike) -> bool:
 
 @contextmanager
 def exclusive(lock_path: str | os.PathLike, waiting: str | None = None) -> Iterator[None]:
-    """Hold an exclusive lock on `lock_path` (created if missing, never removed) within the block: a POSIX lock,
-    which other processes and NFS honour, plus a thread lock per path, since POSIX locks do not exclude the threads
-    of one process. If another writer holds it, print `waiting` (with that writer's pid and host) once to stderr
-    and wait for it."""
+    """Hold an exclusive lock on `lock_path` within the block: a POSIX lock, which other processes and NFS honour,
+    plus a thread lock per path, since POSIX locks do not exclude the threads of one process. The file is created
+    for the block and removed at its end, so no lock file outlives its writer. If another writer holds it, print
+    `waiting` (with that writer's pid and host) once to stderr and wait for it."""
     lock_path = Path(lock_path)
     lock_path.parent.mkdir(parents=True, exist_ok=True)
-    with _thread_lock(lock_path), open(lock_path, "a+") as lock:
-        try:
-            fcntl.lockf(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            if waiting is not None:
-                lock.seek(0)
-                holder = lock.read().strip() or "unknown"
-                print(f"{waiting} (held by {holder}); waiting for it to finish", file=sys.stderr, flush=True)
-            fcntl.lockf(lock, fcntl.LOCK_EX)
+    with _thread_lock(lock_path):
+        lock = _locked(lock_path, waiting)
         try:
             lock.seek(0)
             lock.truncate()
@@ -116,7 +111,43 @@ def exclusive(lock_path: str | os.PathLike, waiting: str | None = None) -> Itera
             lock.flush()
             yield
         finally:
+            lock_path.unlink(missing_ok=True)  # while held: a writer waiting on it finds it gone and locks anew
             fcntl.lockf(lock, fcntl.LOCK_UN)
+            lock.close()
+
+
+def _locked(lock_path: Path, waiting: str | None) -> IO[str]:
+    """The lock file at `lock_path`, open and locked; when the writer before removed the file this one waited on,
+    the lock is taken again on the file now at the path."""
+    said = waiting is None
+    while True:
+        lock = open(lock_path, "a+")  # noqa: SIM115 (returned open: the caller's block closes it)
+        try:
+            try:
+                fcntl.lockf(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                if not said:
+                    lock.seek(0)
+                    holder = lock.read().strip() or "unknown"
+                    print(f"{waiting} (held by {holder}); waiting for it to finish", file=sys.stderr, flush=True)
+                    said = True
+                fcntl.lockf(lock, fcntl.LOCK_EX)
+            if _same_file(lock, lock_path):
+                return lock
+        except BaseException:
+            lock.close()
+            raise
+        lock.close()
+
+
+def _same_file(lock: IO[str], path: Path) -> bool:
+    """Whether the open `lock` is the file at `path` now (not one its holder removed)."""
+    try:
+        at_path = os.stat(path)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(lock.fileno())
+    return (at_path.st_dev, at_path.st_ino) == (held.st_dev, held.st_ino)
 
 
 def _alive(pid: int) -> bool:
@@ -148,3 +179,12 @@ def stale_temporaries(folder: str | os.PathLike, target_glob: str = "*") -> list
         if gone:
             stale.append(tmp)
     return stale
+
+
+def sha256_file(path: str | os.PathLike) -> str:
+    """The SHA-256 of a file's bytes, as hex (read in 1 MiB blocks)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as stream:
+        for block in iter(lambda: stream.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()

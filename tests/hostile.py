@@ -221,7 +221,7 @@ def damage_weights(path: Path, how: str, where: float, other: Path) -> None:
 
 def tree_state(root: Path) -> dict[str, tuple[str, int]]:
     """Every entry under `root`: its kind and (for files) size and a digest, to see that nothing changed. Lock files
-    (`*.lock`, made beside a store by whoever opens it to write or check it, and never removed) are left out."""
+    (`*.lock`, beside a store while a writer holds it) are left out."""
     import hashlib
 
     state = {}

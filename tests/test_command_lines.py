@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -113,29 +114,36 @@ def _interruptible() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+#: A line of `python -X importtime` once the `dynplan` package has loaded: its interrupt handler is in place.
+DYNPLAN_LOADED = re.compile(r"\|\s+dynplan$")
+
+
 def _interrupt(argv: list[str], after: str | None) -> subprocess.CompletedProcess:
-    """Start `argv`; once `after` appears on stderr (or at once, while it loads), send SIGINT."""
-    proc = subprocess.Popen([PYTHON, *argv], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+    """Start `argv`; send SIGINT once `after` appears on stderr (and a second has passed), or with `after` None once
+    the `dynplan` package has loaded and the command's own modules are loading (`-X importtime` says when, however
+    loaded the machine: no sleep decides it)."""
+    loading = after is None
+    command = [PYTHON, *(["-X", "importtime"] if loading else []), *argv]
+    proc = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                             preexec_fn=_interruptible)  # fmt: skip
     seen = []
-    if after is None:
-        time.sleep(0.3)
-    else:
-        for line in proc.stderr:
-            seen.append(line)
-            if after in line:
+    for line in proc.stderr:
+        seen.append(line)
+        if DYNPLAN_LOADED.search(line.rstrip()) if loading else after in line:
+            if not loading:
                 time.sleep(1.0)
-                break
+            break
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=300)
     return subprocess.CompletedProcess(argv, proc.returncode, "", "".join(seen) + err)
 
 
+#: Commands that run for minutes unless interrupted, and when to interrupt them (None: while they load).
 INTERRUPTED = {
     "collect-loading": (["flows.collect", "--out", "{tmp}", "--episodes", "100000"], None),
     "collect-working": (["flows.collect", "--out", "{tmp}", "--episodes", "100000", "--verbose"], "Beginning flow run"),
-    "verify-loading": (["flows.build_datasets", "--verify", "{tmp}/none.zarr"], None),
-    "results-loading": (["dynplan.evaluation.results", "--results-dir", "{tmp}"], None),
+    "evaluate-loading": (["flows.evaluate", "--results-dir", "{tmp}/results", "--log-dir", "{tmp}/logs"], None),
+    "bench-loading": (["dynplan.bench", "world"], None),
 }
 
 

@@ -89,7 +89,8 @@ def test_end_to_end_run_writes_the_report_and_reruns_from_cache(tmp_path, prefec
     text = (work / "report" / "report.md").read_text()
     assert report == str(work / "report" / "report.md")
     for section in ("## Table 1", "| 2× oracle (ours) |", "| 2× mid [default] (ours) |", "![figure 1](figure1.png)",
-                    "| vqvae [default] |", "### pixelcnn `default`", '"codebook_size": 16'):  # fmt: skip
+                    "| vqvae [default] |", "### pixelcnn `default`", '"codebook_size": 16',
+                    "show that every stage works; they are not the paper's figures"):  # fmt: skip
         assert section in text, section
     assert "<table>" in (work / "report" / "report.html").read_text()
     for picture in ("prediction_error.png", "figure1.png", "episode.gif"):
@@ -188,7 +189,7 @@ def _stages(lines: list[str]) -> list[str]:
 
 @pytest.mark.slow
 def test_pretrained_run_uses_the_committed_tokenizer_and_trains_its_prior(tmp_path, prefect_api, monkeypatch):
-    from dynplan.data.store import sha256_file
+    from dynplan.files import sha256_file
     from dynplan.models import pretrained_path
     from flows import collect_train_eval as pipeline
 

@@ -236,3 +236,26 @@ def test_two_runs_compare_case_by_case(tmp_path):
     assert main([str(tmp_path / "one"), "first", str(tmp_path / "two"), "second"]) == compare_runs(a, b)
     with pytest.raises(SystemExit):
         main([str(tmp_path / "one"), "first", str(tmp_path / "two"), "nowhere"])
+
+
+def test_the_lock_file_goes_with_its_writer_and_writers_that_waited_still_exclude_each_other(tmp_path):
+    """`exclusive` removes its file on release (no lock file outlives its command), yet four processes that each add
+    one to a counter 40 times under it, waiting on files their predecessors removed, lose no addition."""
+    from dynplan.files import exclusive, is_held
+
+    lock, counter = tmp_path / "counter.lock", tmp_path / "counter"
+    with exclusive(lock):
+        assert lock.is_file()
+    assert not lock.exists() and not is_held(lock) and not lock.exists()  # asking does not make one either
+    counter.write_text("0")
+    script = (
+        "import sys\nfrom pathlib import Path\nfrom dynplan.files import exclusive\n"
+        "lock, counter = sys.argv[1], Path(sys.argv[2])\n"
+        "for _ in range(40):\n"
+        "    with exclusive(lock):\n"
+        "        value = int(counter.read_text())\n"
+        "        counter.write_text(str(value + 1))\n"
+    )
+    writers = [subprocess.Popen([sys.executable, "-c", script, str(lock), str(counter)]) for _ in range(4)]
+    assert [w.wait(timeout=120) for w in writers] == [0] * 4
+    assert counter.read_text() == "160" and not lock.exists()

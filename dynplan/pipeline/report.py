@@ -16,11 +16,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from dynplan.data.collect import log_path
-from dynplan.data.store import sha256_file
 from dynplan.evaluation.cases import EVAL_SEED_START
 from dynplan.evaluation.table import render_markdown
 from dynplan.evaluation.techniques import technique as find_technique
-from dynplan.files import atomic_path, write_bytes_atomic
+from dynplan.files import atomic_path, sha256_file, write_bytes_atomic
 
 
 @dataclass
@@ -141,6 +140,19 @@ def figures_section(figures: dict[str, str] | None) -> list[str]:
     ]
 
 
+def _purpose(preset: dict) -> list[str]:
+    """What the preset is for, and for any but `full` that its few episodes and small models show that every stage
+    works, not the paper's figures."""
+    lines = [f"Preset `{preset['name']}`: {preset['description']}", ""] if preset.get("description") else []
+    if preset["name"] != "full":
+        lines += [
+            f"**Its few episodes and small models show that every stage works; they are not the paper's figures** "
+            f"(`--world {preset['world']} --preset full` plays the protocol; the committed results: docs/results.md).",
+            "",
+        ]
+    return lines
+
+
 def render_report(
     preset: dict, command: str, results: list[str], stages: list[StageRecord], checkpoints: list[CheckpointRecord]
 ) -> str:
@@ -152,6 +164,7 @@ def render_report(
         f"Regenerate with `{command}`. Learned rows use the world models trained (or, with `pretrained`, "
         "copied from the committed weights) by this run.",
         "",
+        *_purpose(preset),
         *results,
     ]
     lines += ["## Stages", "", "| stage | wall time (s) | detail |", "| --- | ---: | --- |"]

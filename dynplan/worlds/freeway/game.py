@@ -136,27 +136,20 @@ class FreewayStep:
     done: bool
 
 
-class FreewayGame:
-    """The real game and its NOOP shadow, in lockstep, playing `episode` (default: mode 0, no NOOP start)."""
+class ChickenGame:
+    """The real game alone, playing `episode` (default: mode 0, no NOOP start): the chicken, the score and the end —
+    what replaying a row's actions needs, at half the emulation of `FreewayGame`."""
 
     def __init__(self, episode: FreewayEpisode | None = None) -> None:
         self.episode = episode = episode or FreewayEpisode()
         self.real = emulator(episode.mode, episode.sticky, episode.emulator_seed)
-        self.shadow = emulator(episode.mode)  # plays NOOP: nothing to repeat but NOOP
         self._actions = self.real.getMinimalActionSet()
         for _ in range(episode.noop_start):
-            self._advance(0)
+            self.advance(0)
 
-    def _advance(self, action: int) -> float:
-        reward = 0.0
-        for _ in range(FRAMESKIP):
-            reward += self.real.act(self._actions[action])
-            self.shadow.act(self._actions[0])
-        return reward
-
-    def world_frame(self) -> np.ndarray:
-        """The world without the agent now: the shadow's lanes, (154, 152) uint8 palette indices, row 0 the bottom."""
-        return lane_frame(self.shadow.getScreen())
+    def advance(self, action: int) -> float:
+        """Play action index `action` for one agent step (`FRAMESKIP` frames); the reward it earned."""
+        return sum(self.real.act(self._actions[action]) for _ in range(FRAMESKIP))
 
     @property
     def chicken(self) -> Chicken:
@@ -164,12 +157,33 @@ class FreewayGame:
         ram = self.real.getRAM()
         return Chicken(int(ram[CHICKEN_Y_RAM]), int(ram[CHICKEN_TIMER_RAM]))
 
+    def over(self) -> bool:
+        """Whether the game has ended."""
+        return self.real.game_over()
+
+
+class FreewayGame(ChickenGame):
+    """The real game and its NOOP shadow, in lockstep, playing `episode` (default: mode 0, no NOOP start)."""
+
+    def __init__(self, episode: FreewayEpisode | None = None) -> None:
+        self.shadow = emulator((episode or FreewayEpisode()).mode)  # plays NOOP: nothing to repeat but NOOP
+        super().__init__(episode)  # the NOOP start advances both
+
+    def advance(self, action: int) -> float:
+        for _ in range(FRAMESKIP):
+            self.shadow.act(self._actions[0])
+        return super().advance(action)
+
+    def world_frame(self) -> np.ndarray:
+        """The world without the agent now: the shadow's lanes, (154, 152) uint8 palette indices, row 0 the bottom."""
+        return lane_frame(self.shadow.getScreen())
+
     def step(self, action: int) -> FreewayStep:
         """Play `action` (0 NOOP, 1 UP, 2 DOWN) for one agent step in the real game; the shadow plays NOOP."""
         if action not in (0, 1, 2):
             raise ValueError(f"action={action} is invalid; valid range [0, 2] ({', '.join(ACTIONS)})")
-        reward = self._advance(action)
-        return FreewayStep(self.world_frame(), self.chicken, reward, self.real.game_over())
+        reward = self.advance(action)
+        return FreewayStep(self.world_frame(), self.chicken, reward, self.over())
 
 
 def lane_frame(screen: np.ndarray) -> np.ndarray:

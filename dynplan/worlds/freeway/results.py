@@ -25,11 +25,9 @@ from pydantic import Field, model_validator
 
 from dynplan.evaluation.store import expected_weights
 from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, RunLengthActions, StrictSchema, WorldModelEntry
-from dynplan.models.checkpoint import weights_sha256
-from dynplan.models.world_model import world_model_paths
 from dynplan.world_parts import RunKind
 from dynplan.worlds.freeway import WORLD
-from dynplan.worlds.freeway.game import GAME_STEPS, MODES, FreewayEpisode, FreewayGame, emulator_seed
+from dynplan.worlds.freeway.game import GAME_STEPS, MODES, ChickenGame, FreewayEpisode, emulator_seed
 
 #: The techniques a row may name (`dynplan.worlds.freeway.evaluation.TECHNIQUES`).
 TECHNIQUE_NAMES = ("oracle", "learned", "extrapolate", "zero", "up", "random")
@@ -123,6 +121,11 @@ _ROOT = Path(__file__).resolve().parents[3]
 def weights_entry(model: str, model_dir: str | os.PathLike | None) -> dict:
     """What a manifest records of the world model `model` in `model_dir` (holding vqvae.pt and pixelcnn.pt; None:
     the committed weights): their SHA-256, joined, and the files."""
+    from dynplan.models.weights import (
+        weights_sha256,  # torch: imported by the work, not by `--help`
+        world_model_paths,
+    )
+
     paths = world_model_paths(model) if model_dir is None else [Path(model_dir, f"{s}.pt") for s in STAGES]
     shown = [str(p.resolve().relative_to(_ROOT)) if _ROOT in p.resolve().parents else str(p) for p in paths]
     return {"weights_sha256": "+".join(weights_sha256(p) for p in paths), "weights": shown}
@@ -133,16 +136,16 @@ def replayed(row: Mapping, run_settings: Mapping = SETTINGS) -> tuple[float, int
     run's settings (sticky actions drawn from the episode's seed), and whether the game ended on the last."""
     sticky = run_settings["repeat_action_probability"]
     seed = emulator_seed(row["seed"], row["episode"]) if sticky else 0
-    game = FreewayGame(
+    game = ChickenGame(
         FreewayEpisode(mode=row["mode"], noop_start=row["noop_start"], sticky=sticky, emulator_seed=seed)
     )
     score, knocks, steps, done = 0.0, 0, 0, False
     actions = decode_actions(row["actions"])
-    for action in actions:
+    for action in actions:  # each one of the 3 (the encoding has no other letters)
         before = game.chicken
-        step = game.step(action)
-        score, steps, done = score + step.reward, steps + 1, step.done
-        knocks += before.timer == 0 and step.chicken.knocked
+        score, steps = score + game.advance(action), steps + 1
+        done = game.over()
+        knocks += before.timer == 0 and game.chicken.knocked
         if done:
             break
     return score, int(knocks), steps, done and steps == len(actions)
