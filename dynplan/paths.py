@@ -27,6 +27,9 @@ class PathKind(enum.Enum):
     """What a path is given for: (is it read or written, a file or a folder, the suffix a file must have)."""
 
     OUTPUT_FILE = ("output", "file", "", "output file")  # the last field keeps each kind its own member
+    OUTPUT_LOG = ("output", "file", ".mcap", "output log")
+    OUTPUT_GIF = ("output", "file", ".gif", "GIF")
+    OUTPUT_PNG = ("output", "file", ".png", "PNG")
     OUTPUT_FOLDER = ("output", "folder", "", "output folder")
     LOG = ("input", "file", ".mcap", "log")
     LOG_FOLDER = ("input", "folder", "", "log folder")
@@ -167,8 +170,14 @@ def check_output(
 
 
 def check_path(value: str | os.PathLike, parameter: str, kind: PathKind, inputs: tuple = ()) -> Path:
-    """Check `value` as `kind` (see `check_input` and `check_output`); returns it resolved."""
+    """Check `value` as `kind` (see `check_input` and `check_output`; an output of a kind with a suffix is named with
+    it, so that a file is what its name says); returns it resolved."""
     if kind.role == "output":
+        shown = os.fspath(value)
+        if kind.suffix and Path(shown).suffix.lower() != kind.suffix:
+            raise PathError(
+                f"{parameter} {shown}: is not a {kind.suffix} name; what is written there is a {kind.suffix} file"
+            )
         return check_output(value, parameter, kind.shape, inputs)
     return check_input(value, parameter, kind)
 

@@ -116,6 +116,8 @@ def _parser() -> CommandParser:
 def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
     """The run's (config overrides, budget), every value and path checked before any flow starts; an error is a
     ValueError naming the bad one."""
+    if args.codes and args.stage == "vqvae":
+        raise ValueError("--codes names the code array a PixelCNN trains on; a VQ-VAE trains on the store's frames")
     overrides = parse_overrides(args.set)
     budget = TrainBudget(
         epochs=args.epochs,

@@ -48,7 +48,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--screenshot",
-        type=PathArgument(PathKind.OUTPUT_FILE),
+        type=PathArgument(PathKind.OUTPUT_PNG),
         help="write a picture (.png) of the view from headless Chromium, not serve",
     )
     parser.add_argument(

@@ -72,7 +72,7 @@ def add_window_options(parser: argparse.ArgumentParser, scale: int, fps: float, 
     )
     parser.add_argument(
         "--screenshot",
-        type=PathArgument(PathKind.OUTPUT_FILE),
+        type=PathArgument(PathKind.OUTPUT_PNG),
         default=None,
         help="save the window's last picture to this PNG at the end",
     )

@@ -191,7 +191,7 @@ def play_main(name: str, own: PlayCommand, argv: Sequence[str]) -> PlayState:
     parser.add_argument("--watch", action="store_true", help="start with the planner playing")
     parser.add_argument(
         "--record",
-        type=PathArgument(PathKind.OUTPUT_FILE),
+        type=PathArgument(PathKind.OUTPUT_LOG),
         default=None,
         help="write what was played to this replay log (.mcap) at the end",
     )

@@ -100,3 +100,10 @@ def headless_window(monkeypatch):
     """pygame windows open on SDL's dummy video and audio drivers (the play tests feed them real key events)."""
     monkeypatch.setenv("SDL_VIDEODRIVER", "dummy")
     monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The files that hold slow tests first (each file's tests together, its fixtures built once), so that the workers
+    share the long tests out and none is left alone at the end."""
+    slow_files = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in slow_files)

@@ -20,7 +20,7 @@ import flows.replay
 from dynplan.cli import Bounded, CommandParser, bounded
 from dynplan.data.collect import CollectPlan, record_episode
 from dynplan.files import atomic_path, write_bytes_atomic
-from dynplan.paths import PathError, PathKind, check_input, check_output
+from dynplan.paths import PathError, PathKind, check_input, check_output, check_path
 
 ROOT = Path(__file__).resolve().parents[1]
 PYTHON = sys.executable
@@ -94,6 +94,7 @@ def _run(argv: list[str], **kwargs) -> subprocess.CompletedProcess:
 
 def test_usage_errors_are_one_line_from_the_real_entry_points():
     for argv in (["-m", "flows.collect", "--bogus"], ["-m", "flows.replay"], ["-m", "flows.train", "nosuchstage"],
+                 ["-m", "flows.train", "vqvae", "--codes", "codes_default"],  # the PixelCNN's option
                  ["-m", "dynplan.evaluation.results", "--results-dir"]):  # fmt: skip
         proc = _run(argv)
         assert proc.returncode == 2, proc.stderr
@@ -173,3 +174,19 @@ def test_a_full_disk_is_one_line_naming_the_file(tmp_path):
     assert "Traceback" not in proc.stderr
     last = proc.stderr.strip().splitlines()[-1]
     assert f"{disk}/episode_" in last and "No space left on device" in last, last
+
+
+@pytest.mark.parametrize("kind, name", [(PathKind.OUTPUT_GIF, "r.png"), (PathKind.OUTPUT_LOG, "replay.gif"),
+                                        (PathKind.OUTPUT_PNG, "shot")])  # fmt: skip
+def test_an_output_named_for_another_format_is_refused(tmp_path, kind, name):
+    """`--gif r.png` would write a GIF under a PNG's name: refused, naming the suffix it needs."""
+    with pytest.raises(PathError, match=rf"--x {tmp_path / name}: is not a \{kind.suffix} name"):
+        check_path(tmp_path / name, "--x", kind)
+    assert check_path(tmp_path / f"r{kind.suffix.upper()}", "--x", kind) == tmp_path / f"r{kind.suffix.upper()}"
+
+
+def test_replay_refuses_a_gif_named_png():
+    log = "datasets/replays/episode_0001000000.replay-model-default-s5-f0.mcap"  # a log there is (tracked)
+    proc = _run(["-m", "flows.replay", log, "--gif", "r.png"])
+    assert proc.returncode == 2 and proc.stderr.strip().count("\n") == 0, proc.stderr
+    assert "--gif r.png: is not a .gif name" in proc.stderr, proc.stderr

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import select
 import signal
 import socket
@@ -186,6 +187,23 @@ def test_an_incomplete_app_folder_is_not_installed(tmp_path):
     assert viewer_app.installed_app(tmp_path) is None
     (folder / viewer_app.MANIFEST).write_text("{")
     assert viewer_app.installed_app(tmp_path) is None
+
+
+@pytest.mark.parametrize("name", ["../../secret", "/etc/hostname", "out/secret"])
+def test_an_app_manifest_naming_a_file_outside_its_folder_is_not_served(tmp_path, name):
+    """A cache whose manifest names a file outside the app's folder (by `..`, an absolute path or a link out) is no
+    installed app, and the server's table refuses it naming the manifest: nothing outside the folder is served."""
+    folder = tmp_path / "cache" / viewer_app.APP_FOLDER
+    folder.mkdir(parents=True)
+    (tmp_path / "secret").write_text("private")
+    (folder / "out").symlink_to(tmp_path)
+    manifest = {"version": viewer_app.STUDIO_VERSION, "files": {name: Path("/etc/hostname").stat().st_size}}
+    if name != "/etc/hostname":
+        manifest["files"][name] = len("private")
+    (folder / viewer_app.MANIFEST).write_text(json.dumps(manifest))
+    assert viewer_app.installed_app(tmp_path / "cache") is None
+    with pytest.raises(InputError, match=rf"manifest.json: names '{re.escape(name)}', outside the app's folder"):
+        routes(folder, tmp_path / "layout.json", [])
 
 
 def test_without_npm_the_install_says_so(tmp_path, monkeypatch):

@@ -84,15 +84,26 @@ def installed_app(cache: Path) -> Path | None:
     try:
         manifest = json.loads((folder / MANIFEST).read_text())
         complete = all((folder / name).stat().st_size == size for name, size in manifest["files"].items())
+        confined = all(_inside(folder, name) for name in manifest["files"])
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    return folder if complete and manifest.get("version") == STUDIO_VERSION else None
+    return folder if complete and confined and manifest.get("version") == STUDIO_VERSION else None
 
 
 def app_files(folder: Path) -> dict[str, Path]:
-    """The installed app's files by their path in the app folder (what the server may serve of it)."""
+    """The installed app's files by their path in the app folder (what the server may serve of it); a manifest that
+    names a file outside the folder (`..`, an absolute path, a link leading out) is an InputError naming it."""
     names = json.loads((folder / MANIFEST).read_text())["files"]
+    for name in names:
+        if not _inside(folder, name):
+            raise InputError(f"{folder / MANIFEST}: names {name!r}, outside the app's folder; remove {folder}")
     return {name: folder / name for name in names}
+
+
+def _inside(folder: Path, name: str) -> bool:
+    """Whether `name` resolves (links followed) to a file inside `folder`."""
+    root = folder.resolve()
+    return root in (root / name).resolve().parents
 
 
 def install(cache: Path) -> Path:

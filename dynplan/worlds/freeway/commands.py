@@ -240,11 +240,11 @@ class Replay:
         parser.add_argument(
             "--horizon", type=bounded(ChickenSearch, "horizon"), default=8, help=field_help(ChickenSearch, "horizon")
         )
-        parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FILE), help="the replay log to write")
+        parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_LOG), help="the replay log to write")
         parser.add_argument("--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), help=MODEL_DIR_HELP)
         parser.add_argument(
             "--gif",
-            type=PathArgument(PathKind.OUTPUT_FILE),
+            type=PathArgument(PathKind.OUTPUT_GIF),
             help=f"also write a GIF of the first {GIF_STEPS} steps: the lanes now, the true and the "
             "searched lanes k steps on, their error (planning techniques)",
         )

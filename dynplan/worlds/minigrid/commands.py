@@ -257,11 +257,11 @@ class Replay:
         parser.add_argument("-k", "--horizon", type=Bounded(int, 1, 8), default=5, help="the planner's horizon")
         samples = "futures the walk technique samples a decision (default 64)"
         parser.add_argument("--samples", type=Bounded(int, 1, 4096), default=64, help=samples)
-        parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_FILE), help="the replay log to write")
+        parser.add_argument("--out", type=PathArgument(PathKind.OUTPUT_LOG), help="the replay log to write")
         models = "folder holding minigrid/{vqvae,pixelcnn}.pt for a learned technique (default: the committed)"
         parser.add_argument("--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), default=None, help=models)
         gif = "also write a GIF of the episode: the room now, the true and an imagined room k steps on, the chances"
-        parser.add_argument("--gif", type=PathArgument(PathKind.OUTPUT_FILE), help=gif)
+        parser.add_argument("--gif", type=PathArgument(PathKind.OUTPUT_GIF), help=gif)
 
     def request(self, args: argparse.Namespace) -> MiniGridReplay:
         out = args.out or str(default_replay_path(args.log, args.technique))

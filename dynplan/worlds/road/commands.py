@@ -73,12 +73,12 @@ class Replay:
         )
         parser.add_argument(
             "--out",
-            type=PathArgument(PathKind.OUTPUT_FILE),
+            type=PathArgument(PathKind.OUTPUT_LOG),
             help="replay MCAP to write (default: ../replays/EPISODE.replay-PLANNER.mcap from the log)",
         )
         parser.add_argument(
             "--gif",
-            type=PathArgument(PathKind.OUTPUT_FILE),
+            type=PathArgument(PathKind.OUTPUT_GIF),
             help="also write a GIF: observed | true future | predicted | error",
         )
         parser.add_argument(
