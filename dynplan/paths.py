@@ -173,12 +173,12 @@ def check_path(value: str | os.PathLike, parameter: str, kind: PathKind, inputs:
     """Check `value` as `kind` (see `check_input` and `check_output`; an output of a kind with a suffix is named with
     it, so that a file is what its name says); returns it resolved."""
     if kind.role == "output":
-        shown = os.fspath(value)
+        out, shown = check_output(value, parameter, kind.shape, inputs), os.fspath(value)
         if kind.suffix and Path(shown).suffix.lower() != kind.suffix:
             raise PathError(
                 f"{parameter} {shown}: is not a {kind.suffix} name; what is written there is a {kind.suffix} file"
             )
-        return check_output(value, parameter, kind.shape, inputs)
+        return out
     return check_input(value, parameter, kind)
 
 

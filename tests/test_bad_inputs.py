@@ -71,7 +71,7 @@ CASES = [
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/logs/episode_0000000003.mcap"],
      "--out {root}/logs/episode_0000000003.mcap: is an input of this command"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/r.mcap", "--gif", "{root}/r.mcap"],
-     "--gif {root}/r.mcap: is the path of --out too"),
+     "--gif {root}/r.mcap: is not a .gif name"),  # never the path of --out: a GIF's name ends .gif, a log's .mcap
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/things"], "--out {root}/things: is a folder"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/a_file/x.mcap"], "is a file, so nothing can"),
     ("replay", ["{root}/logs/episode_0000000003.mcap", "--out", "{root}/r.mcap", "--seed", "-1"],
