@@ -25,13 +25,24 @@ settings.register_profile("ci", max_examples=60, deadline=None, suppress_health_
 settings.load_profile("ci" if os.environ.get("CI") else "dev")
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="session", autouse=True)
 def prefect_api():
-    """A throwaway Prefect API (temporary database) for tests that run flows in-process."""
+    """One throwaway Prefect API (temporary database) per test process, for the flows tests run in-process and,
+    through `PREFECT_API_URL`, for the commands they start: a command's own temporary API server costs about 6 s of
+    CPU. A test of that temporary server runs its command without the variable (`tests/test_cli.py::without_api`)."""
+    from prefect.settings import PREFECT_API_URL
     from prefect.testing.utilities import prefect_test_harness
 
     with prefect_test_harness(server_startup_timeout=120):
-        yield
+        before = os.environ.get("PREFECT_API_URL")
+        os.environ["PREFECT_API_URL"] = PREFECT_API_URL.value()
+        try:
+            yield
+        finally:
+            if before is None:
+                os.environ.pop("PREFECT_API_URL", None)
+            else:
+                os.environ["PREFECT_API_URL"] = before
 
 
 @pytest.fixture(scope="session")

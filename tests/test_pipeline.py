@@ -163,10 +163,12 @@ def test_the_readme_main_command_is_the_pipeline():
 def test_cli_runs_the_pipeline_on_an_ephemeral_api(tmp_path):
     import os
 
+    no_api = {k: v for k, v in os.environ.items() if k != "PREFECT_API_URL"}  # its own temporary API
+
     def run() -> tuple[subprocess.CompletedProcess, list[str]]:
         result = subprocess.run([sys.executable, "-m", "flows.collect_train_eval", "--preset", "smoke", "--out",
                                  str(tmp_path)], capture_output=True, text=True, timeout=600,
-                                env={**os.environ, "PREFECT_HOME": str(tmp_path / "prefect")})  # fmt: skip
+                                env={**no_api, "PREFECT_HOME": str(tmp_path / "prefect")})  # fmt: skip
         assert result.returncode == 0, result.stderr[-3000:]
         return result, (result.stdout + result.stderr).strip().splitlines()
 
