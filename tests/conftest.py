@@ -113,21 +113,11 @@ def headless_window(monkeypatch):
     monkeypatch.setenv("SDL_AUDIODRIVER", "dummy")
 
 
-#: The files whose tests take longest, dispatched first so that the workers share them out rather than one of them
-#: finishing alone (then the other files with slow tests, then the rest; a file's slow tests before its others).
-LONGEST_FIRST = ("test_committed_results.py", "test_pipeline.py", "test_freeway_model.py", "test_freeway_planning.py",
-                 "test_readme.py", "test_minigrid_model.py", "test_view.py", "test_bench.py")  # fmt: skip
-
-
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The files that hold slow tests first (each file's tests together, its fixtures built once), so that the workers
+    share the long tests out and none is left alone at the end."""
     slow_files = {item.path for item in items if item.get_closest_marker("slow")}
-
-    def rank(item: pytest.Item) -> tuple:
-        name = item.path.name
-        first = LONGEST_FIRST.index(name) if name in LONGEST_FIRST else len(LONGEST_FIRST)
-        return first, item.path not in slow_files, item.get_closest_marker("slow") is None
-
-    items.sort(key=rank)
+    items.sort(key=lambda item: item.path not in slow_files)
 
 
 def pytest_xdist_auto_num_workers(config: pytest.Config) -> int:
