@@ -20,6 +20,7 @@ from dynplan.evaluation.techniques import TECHNIQUES, AgentInputs, Technique, le
 from dynplan.models.caution import Caution
 from dynplan.models.device import check_device
 from dynplan.models.registry import caution_for, models_of, world_model_spec
+from dynplan.models.weights import world_model_paths
 from dynplan.planning.config import MCTSConfig
 from dynplan.planning.forward import ForwardModel
 from dynplan.world import DEFAULT_WORLD
@@ -117,7 +118,6 @@ class AgentSpec(Config):
         the file that is missing, damaged, of the wrong shapes, non-finite, unlike its model card or another
         configuration's, or whose tokenizer cannot take the agent's caution."""
         from dynplan.models.checkpoint import CheckpointError
-        from dynplan.models.weights import world_model_paths
         from dynplan.models.world_model import world_model_parts
 
         if self.plans_with.world_model:

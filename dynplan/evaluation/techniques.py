@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 from dynplan.env.road import World
 from dynplan.models.registry import caution_for
+from dynplan.models.weights import world_model_paths
 from dynplan.planning.forward import ForwardModel, OracleModel, ZeroModel
 
 
@@ -60,7 +61,6 @@ def learned_model(
     """The learned forward model of configuration `model` (weights loaded once per content; see
     `world_model_paths`), with the configuration's own caution except where `caution` (field → value) overrides
     it, generating batches on `device`."""
-    from dynplan.models.weights import world_model_paths
     from dynplan.models.world_model import LearnedWorldModel, world_model_parts  # torch: on use
 
     parts = world_model_parts(world_model_paths(model, model_dir), model)
