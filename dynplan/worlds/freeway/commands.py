@@ -31,7 +31,15 @@ from dynplan.worlds.freeway.evaluation import (
 from dynplan.worlds.freeway.game import FreewayEpisode
 from dynplan.worlds.freeway.play import HORIZONS, FreewayPlay
 from dynplan.worlds.freeway.replay import GIF_STEPS, default_replay_path, replay_freeway, replayable
-from dynplan.worlds.freeway.results import RUNS, SHOWN_RUNS, replay_check, settings, weights_entry
+from dynplan.worlds.freeway.results import (
+    RUNS,
+    SHOWN_RUNS,
+    replay_key,
+    replay_problem,
+    replayed,
+    settings,
+    weights_entry,
+)
 from dynplan.worlds.freeway.search import ChickenSearch
 
 RESULTS_DIR = "datasets/results/freeway"
@@ -181,18 +189,24 @@ class Evaluate:
         return summarise(read_run(request.results, request.run))
 
     def check(self, request: FreewayEvaluation) -> list[str]:
-        """Replay every counted row of the run in a fresh emulator, on every core (each row alone in a worker
-        process): one line per row whose actions do not give its score, knocks and steps (none: every score
+        """Replay every counted row of the run in a fresh game, on every core (each distinct replay once, alone in a
+        worker process): one line per row whose actions do not give its score, knocks and steps (none: every score
         holds)."""
         problems, run = [], Run(request.results, request.run, RUNS)
         run_settings = run.manifest()["settings"]
         rows = run.current()
+        keys = [replay_key(row, run_settings) for row in rows]
+        distinct = list({key: row for key, row in zip(keys, rows, strict=True)}.items())  # same game, same actions
         spawn = multiprocessing.get_context("spawn")  # fresh workers: nothing of this process's threads
-        with ProcessPoolExecutor(max_workers=min(os.cpu_count() or 1, len(rows) or 1), mp_context=spawn) as pool:
-            checked = pool.map(replay_check, rows, itertools.repeat(run_settings))
-            for row, problem in zip(rows, progress(checked, total=len(rows), description="rows replayed"), strict=True):
-                if problem is not None:
-                    problems.append(" ".join(f"{k}={row[k]}" for k in RUNS.case_keys) + f": {problem}")
+        workers = min(os.cpu_count() or 1, len(distinct) or 1)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=spawn) as pool:
+            played = pool.map(replayed, [row for _, row in distinct], itertools.repeat(run_settings))
+            shown = progress(played, total=len(distinct), description="rows replayed")
+            replays = {key: replay for (key, _), replay in zip(distinct, shown, strict=True)}
+        for key, row in zip(keys, rows, strict=True):
+            problem = replay_problem(row, replays[key])
+            if problem is not None:
+                problems.append(" ".join(f"{k}={row[k]}" for k in RUNS.case_keys) + f": {problem}")
         return problems
 
     def describe(self, summary: list[dict]) -> list[str]:

@@ -140,9 +140,11 @@ class ChickenGame:
     """The real game alone, playing `episode` (default: mode 0, no NOOP start): the chicken, the score and the end —
     what replaying a row's actions needs, at half the emulation of `FreewayGame`."""
 
-    def __init__(self, episode: FreewayEpisode | None = None) -> None:
+    def __init__(self, episode: FreewayEpisode | None = None, real=None) -> None:
+        """`real`: an emulator of the episode's mode and settings at the game's start, to play on (replays reuse
+        one a mode); default a new one."""
         self.episode = episode = episode or FreewayEpisode()
-        self.real = emulator(episode.mode, episode.sticky, episode.emulator_seed)
+        self.real = real if real is not None else emulator(episode.mode, episode.sticky, episode.emulator_seed)
         self._actions = self.real.getMinimalActionSet()
         for _ in range(episode.noop_start):
             self.advance(0)

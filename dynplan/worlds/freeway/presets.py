@@ -1,10 +1,11 @@
 """Freeway's pipeline presets and its evaluation plan (`collect-train-eval --world freeway`).
 
-Every run records the 8 game modes, and the world model trains on the modes `split_of` gives it:
+Every run but `smoke` records the 8 game modes, and the world model trains on the modes `split_of` gives it:
 - `quick`: both stages from scratch with short budgets, then the oracle and the learned agent play one episode of
   mode 0 on the real game — end to end in minutes.
 - `full`: the committed weights and the committed evaluation (modes 0 and 4, 20 episodes, every technique).
-- `smoke`: tiny models; always-UP plays one episode (a learned tiny model would spend minutes on 2,048 steps).
+- `smoke`: tiny models on modes 0–5 (mode 5 the validation's); always-UP plays one episode (a learned tiny model
+  would spend minutes on 2,048 steps).
 """
 
 from __future__ import annotations
@@ -63,15 +64,16 @@ _SMOKE_PIXELCNN = StagePlan(
     budget=SMOKE_BUDGET,
 )
 _MODES = 8  # every game mode is recorded; the split decides which the world model trains on
+_SMOKE_MODES = 6  # up to mode 5, the validation's
 _MODEL = CONFIGURATION.name
 
 
-def _preset(name: str, description: str, evaluation: FreewayEvalPlan, **stages) -> PipelinePreset:
+def _preset(name: str, description: str, evaluation: FreewayEvalPlan, modes: int = _MODES, **stages) -> PipelinePreset:
     return PipelinePreset(
         name=name,
         world="freeway",
         description=description,
-        train_episodes=_MODES,
+        train_episodes=modes,
         models=(_MODEL,),
         evaluation=evaluation,
         **stages,
@@ -98,6 +100,7 @@ PRESETS: dict[str, PipelinePreset] = {
         "smoke",
         "Freeway's every stage on tiny models in a minute (tests, deployment checks).",
         FreewayEvalPlan(techniques=("up",), modes=(0,), episodes=1),
+        modes=_SMOKE_MODES,
         vqvae={_MODEL: _SMOKE_VQVAE},
         pixelcnn={_MODEL: _SMOKE_PIXELCNN},
     ),

@@ -27,7 +27,7 @@ from dynplan.evaluation.store import expected_weights
 from dynplan.evaluation.store_schema import FORMAT, ROLES, Invocation, RunLengthActions, StrictSchema, WorldModelEntry
 from dynplan.world_parts import RunKind
 from dynplan.worlds.freeway import WORLD
-from dynplan.worlds.freeway.game import GAME_STEPS, MODES, ChickenGame, FreewayEpisode, emulator_seed
+from dynplan.worlds.freeway.game import GAME_STEPS, MODES, ChickenGame, FreewayEpisode, emulator, emulator_seed
 
 #: The techniques a row may name (`dynplan.worlds.freeway.evaluation.TECHNIQUES`).
 TECHNIQUE_NAMES = ("oracle", "learned", "extrapolate", "zero", "up", "random")
@@ -131,14 +131,37 @@ def weights_entry(model: str, model_dir: str | os.PathLike | None) -> dict:
     return {"weights_sha256": "+".join(weights_sha256(p) for p in paths), "weights": shown}
 
 
+#: A deterministic emulator of each mode and its state at the game's start, kept by each process that replays rows:
+#: loading the game takes 0.1 s, a tenth of a replay; restoring its start takes 0.1 ms. Sticky replays each draw from
+#: their own seed, so each loads its own.
+_STARTS: dict[int, tuple] = {}
+
+
+def _game(episode: FreewayEpisode) -> ChickenGame:
+    """A game at the start of `episode`, in a fresh emulator or (no sticky actions) one restored to the start."""
+    if episode.sticky:
+        return ChickenGame(episode)
+    if episode.mode not in _STARTS:
+        real = emulator(episode.mode)
+        _STARTS[episode.mode] = (real, real.cloneState())
+    real, start = _STARTS[episode.mode]
+    real.restoreState(start)
+    return ChickenGame(episode, real)
+
+
+def replay_key(row: Mapping, run_settings: Mapping = SETTINGS) -> tuple:
+    """What a row's replay depends on: its mode, NOOP start and actions (and, with sticky actions, the seed its
+    episode draws them from). Rows with the same key replay alike, so a check replays each key once."""
+    sticky = (row["seed"], row["episode"]) if run_settings["repeat_action_probability"] else ()
+    return (row["mode"], row["noop_start"], row["actions"], *sticky)
+
+
 def replayed(row: Mapping, run_settings: Mapping = SETTINGS) -> tuple[float, int, int, bool]:
     """The score, knocks and steps of `row`'s actions played from its mode's NOOP start in a fresh emulator with its
     run's settings (sticky actions drawn from the episode's seed), and whether the game ended on the last."""
     sticky = run_settings["repeat_action_probability"]
     seed = emulator_seed(row["seed"], row["episode"]) if sticky else 0
-    game = ChickenGame(
-        FreewayEpisode(mode=row["mode"], noop_start=row["noop_start"], sticky=sticky, emulator_seed=seed)
-    )
+    game = _game(FreewayEpisode(mode=row["mode"], noop_start=row["noop_start"], sticky=sticky, emulator_seed=seed))
     score, knocks, steps, done = 0.0, 0, 0, False
     actions = decode_actions(row["actions"])
     for action in actions:  # each one of the 3 (the encoding has no other letters)
@@ -154,7 +177,12 @@ def replayed(row: Mapping, run_settings: Mapping = SETTINGS) -> tuple[float, int
 def replay_check(row: Mapping, run_settings: Mapping = SETTINGS) -> str | None:
     """None when `row`'s actions, played again with its run's settings, give its score, knocks and steps and end
     the game on the last; else what differs."""
-    score, knocks, steps, ended = replayed(row, run_settings)
+    return replay_problem(row, replayed(row, run_settings))
+
+
+def replay_problem(row: Mapping, replay: tuple[float, int, int, bool]) -> str | None:
+    """None when `replay` (`replayed`'s score, knocks, steps and end) is what `row` says; else what differs."""
+    score, knocks, steps, ended = replay
     if (score, knocks, steps) == (row["score"], row["knocks"], row["steps"]) and ended:
         return None
     end = "" if ended else ", the game not ending on the last"

@@ -65,7 +65,7 @@ def bench_minigrid() -> dict[str, dict[str, float]]:
 
     technique("learned10")(*places[0])  # compiles the generation kernel and loads the weights before any timing
     results = {"walk64": _timed(technique("walk"), places)}
-    for count in (1, threads):
+    for count in dict.fromkeys((1, threads)):  # one thread, then every core's (once, on one core)
         torch.set_num_threads(count)
         for samples in (10, 5, 1):
             case = f"learned{samples}" + ("_1thread" if count == 1 and threads > 1 else "")
