@@ -42,10 +42,16 @@ def _wait(what: str, ready, timeout: float, log: Path, proc: subprocess.Popen | 
 
 
 def _healthy(url: str) -> bool:
+    return _found(f"{url}/health")
+
+
+def _found(url: str) -> bool:
+    """Whether the server answers `url` with 200 (asked over HTTP: a `prefect` command a second would cost a
+    process start each)."""
     try:
-        with urllib.request.urlopen(f"{url}/health", timeout=5) as response:
+        with urllib.request.urlopen(url, timeout=5) as response:
             return response.status == 200
-    except OSError:
+    except OSError:  # an HTTPError (404: not yet) or no server
         return False
 
 
@@ -79,11 +85,7 @@ def run_check(out: Path, preset: str = "smoke", timeout: float = 900) -> Path:
         )
         name = f"collect-train-eval/{preset}"
 
-        def deployed() -> bool:
-            inspect = subprocess.run([prefect, "deployment", "inspect", name], env=env, capture_output=True)
-            return inspect.returncode == 0
-
-        _wait(f"deployment {name}", deployed, 180, serve_log, serving)
+        _wait(f"deployment {name}", lambda: _found(f"{api}/deployments/name/{name}"), 180, serve_log, serving)
         trigger = subprocess.run(
             [prefect, "deployment", "run", name, "--watch", "--watch-timeout", str(int(timeout))],
             env=env,
