@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes
+import errno
 import math
 import os
 import re
@@ -106,6 +107,38 @@ def bounded(model: type[BaseModel], name: str) -> Bounded:
     return Bounded(kind, **bounds)
 
 
+#: What a file system's refusal means, for the line that names the file (an error of the machine, not the command).
+FILE_SYSTEM = {
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "the disk quota is used up",
+    errno.EROFS: "the file system is read-only",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EISDIR: "is a folder where a file is needed",
+    errno.ENOTDIR: "a part of the path is a file where a folder is needed",
+    errno.EEXIST: "is in the way: something of another kind is there already",
+    errno.ENAMETOOLONG: "the name is too long",
+    errno.EPIPE: "closed by the reader",
+}
+
+
+def file_system_error(error: BaseException) -> str | None:
+    """The line for an error of the file system the command met (its file named; a write that names none, the
+    standard stream that failed), or None for any other error."""
+    if not isinstance(error, OSError) or error.errno not in FILE_SYSTEM:
+        return None
+    said = error.strerror if error.strerror and error.strerror[0].islower() else FILE_SYSTEM[error.errno]
+    if error.filename is not None:
+        return f"{error.filename}: {said}"
+    for name, stream in (("stdout", sys.stdout), ("stderr", sys.stderr)):
+        try:
+            stream.flush()
+        except OSError:
+            os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())  # nothing more to say there, at exit either
+            return f"{name}: {FILE_SYSTEM[error.errno]}"
+    return f"{FILE_SYSTEM[error.errno]} ({error.strerror or error})"
+
+
 def _one_line(error: BaseException) -> str:
     """An error as one line: an OSError names its file."""
     if isinstance(error, OSError) and error.filename is not None:
@@ -155,15 +188,22 @@ def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[s
     if signal.getsignal(signal.SIGINT) is _interrupted_while_loading:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
-        return main(argv)
+        try:
+            result = main(argv)
+        except SystemExit:  # `--help`, a usage error: what they printed is flushed here too
+            sys.stdout.flush()
+            raise
+        sys.stdout.flush()  # a full device or a closed pipe is this command's to name, not the interpreter's at exit
+        return result
     except KeyboardInterrupt:
         print(f"{prog}: interrupted; run it again to resume", file=sys.stderr)
         raise SystemExit(130) from None
     except Exception as error:
         if debug:
             raise
-        hint = "" if isinstance(error, InputError) else " (run with --debug for the traceback)"
-        print(f"{prog}: error: {_one_line(error)}{hint}", file=sys.stderr)
+        machine = file_system_error(error)
+        hint = "" if isinstance(error, InputError) or machine else " (run with --debug for the traceback)"
+        print(f"{prog}: error: {machine or _one_line(error)}{hint}", file=sys.stderr)
         raise SystemExit(2 if isinstance(error, InputError) else 1) from None
 
 

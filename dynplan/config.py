@@ -1,7 +1,9 @@
 """Base for dynplan's configuration objects: frozen pydantic models whose errors read as one clear line.
 
 A bad value names the field, the value given and the field's valid range; an unknown key is named together
-with the valid keys. Configs serialise to plain dicts (`model_dump`) for Prefect parameters, cache keys and
+with the valid keys. Scalars are taken as they are, never coerced: a bool is not a number, a string is neither a
+number nor a bool, and a number is not a bool (`coercion`; an int is a number, and 2.0 an int), here and in every
+`--set` and config file. Configs serialise to plain dicts (`model_dump`) for Prefect parameters, cache keys and
 log metadata.
 
 A field added after configs were first hashed into cache keys and checkpoints lists itself in `_neutral` with
@@ -13,11 +15,13 @@ from __future__ import annotations
 
 import hashlib
 import json
-from typing import Any, ClassVar
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, ValidationError, model_serializer
+from pydantic import BaseModel, ConfigDict, ValidationError, model_serializer, model_validator
 from pydantic.fields import FieldInfo
 
+from dynplan.arguments import union_members
 from dynplan.cli import InputError
 
 
@@ -74,11 +78,53 @@ def describe(cls: type[BaseModel], error: ValidationError) -> str:
     return f"{cls.__name__}: " + "; ".join(problems)
 
 
-class Config(BaseModel):
-    """Frozen, strict-keyed config whose construction errors are `ConfigError`s."""
+#: What a value of each scalar kind is called, for the message that refuses it.
+_KINDS = {bool: "true or false", int: "an integer", float: "a number", type(None): "null"}
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+
+def coercion(value: Any, annotation: Any) -> str | None:
+    """Why pydantic would coerce `value` to fit `annotation` instead of taking it as it is — a bool read as a number,
+    a string as a number or a bool, a number as a bool — in a field of scalars (or of tuples, lists or mappings of
+    them); None when the value is taken as it is, or the annotation's own validation decides."""
+    options = [kind for kind, _ in union_members(annotation)]
+    if len(options) == 1 and isinstance(value, list | tuple) and get_origin(options[0]) in (tuple, list, Sequence):
+        inner = [a for a in get_args(options[0]) if a is not Ellipsis]
+        items = inner * len(value) if len(inner) == 1 else inner
+        found = (coercion(item, a) for item, a in zip(value, items, strict=False))
+        return next((f"item {i}: {why}" for i, why in enumerate(found) if why), None)
+    if len(options) == 1 and isinstance(value, dict) and get_origin(options[0]) in (dict, Mapping):
+        found = ((key, coercion(item, get_args(options[0])[-1])) for key, item in value.items())
+        return next((f"key {key!r}: {why}" for key, why in found if why), None)
+    if not options or not all(option in _KINDS for option in options):
+        return None  # a string, a path, a literal, a config…: its own validation decides
+    kind = bool if isinstance(value, bool) else int if isinstance(value, int) else type(value)
+    numbers = kind in (int, float) and bool({int, float} & set(options))  # an int a float; pydantic: 2.0 an int
+    if kind in options or numbers or kind not in (bool, int, float, str):
+        return None
+    expected = " or ".join(_KINDS[option] for option in options)
+    return f"a {kind.__name__} {value!r} is not {expected}"
+
+
+class Config(BaseModel):
+    """Frozen, strict-keyed config whose construction errors are `ConfigError`s; scalars are never coerced."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
     _neutral: ClassVar[dict[str, Any]] = {}
+
+    @model_validator(mode="before")
+    @classmethod
+    def _taken_as_given(cls, data: Any) -> Any:
+        """Refuse a value pydantic would coerce (`coercion`), naming the field and its valid range."""
+        if not isinstance(data, dict):
+            return data
+        for name, value in data.items():
+            field = cls.model_fields.get(name)
+            why = None if field is None else coercion(value, field.annotation)
+            if why:
+                rng = valid_range(field)
+                where = f"; valid range {rng}" if rng else ""
+                raise ValueError(f"{name}={value!r} is invalid ({why}){where}")
+        return data
 
     @model_serializer(mode="wrap")
     def _omit_neutral(self, handler):

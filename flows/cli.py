@@ -78,15 +78,19 @@ def _wait_until_healthy(server: subprocess.Popen, url: str, log: IO[bytes]) -> N
 @contextmanager
 def temporary_api() -> Iterator[str | None]:
     """Within the block, Prefect talks to `PREFECT_API_URL` if set, else to a temporary server of this process's
-    own, stopped after the block (and signalled by the kernel if this process dies first). Yields the API's URL.
+    own, stopped after the block (and signalled by the kernel if this process dies first). Yields the API's URL. The
+    environment is checked first (`flows.environment`): a bad setting, an API that is not there, an unwritable home.
     The server's own output goes to a temporary file (its shutdown when the command is interrupted is no concern of
     the terminal's); its last line is told if it fails to start. The terminal shows what `_Console` lets through."""
+    from flows.environment import checked_environment
+
+    external = checked_environment()  # a bad PREFECT_* variable, API or home is named before anything runs
     import prefect
     from prefect.settings import PREFECT_API_URL, PREFECT_UI_URL, get_current_settings, temporary_settings
 
     _quiet_console()
-    if PREFECT_API_URL.value():
-        yield PREFECT_API_URL.value()
+    if external:
+        yield external
         return
     port = _free_port()
     url = f"http://127.0.0.1:{port}/api"

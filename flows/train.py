@@ -128,6 +128,11 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
         device=args.device,
     ).model_dump()
     preset = world_model_spec(args.model)
+    if overrides.get("world", preset.world) != preset.world:  # the store is checked against the model's world
+        raise ValueError(
+            f"--set world={overrides['world']!r}: --model {args.model} models the {preset.world} world; a model of "
+            "another world is another --model"
+        )
     try:
         if args.stage == "vqvae":
             config = VQVAEConfig(**{**preset.tokenizer.model_dump(), **overrides})

@@ -5,10 +5,12 @@ input file (logs, results stores, frames-store metadata, weights)."""
 from __future__ import annotations
 
 import argparse
+import atexit
 import json
 import math
 import os
 import shutil
+from collections import Counter
 from pathlib import Path
 
 import torch
@@ -235,3 +237,25 @@ def tree_state(root: Path) -> dict[str, tuple[str, int]]:
             else:
                 state[str(path)] = (hashlib.sha256(path.read_bytes()).hexdigest(), path.stat().st_size)
     return state
+
+
+#: Cases drawn by the harness and their outcomes, by class: (class, outcome) → count.
+OUTCOMES: Counter = Counter()
+
+
+def _report() -> None:
+    """`DYNPLAN_HARNESS_REPORT=FILE`: the cases drawn in this process, per class, added to FILE's (docs/robustness.md;
+    each test process adds its own)."""
+    target = os.environ.get("DYNPLAN_HARNESS_REPORT")
+    if not target or not OUTCOMES:
+        return
+    from dynplan.files import exclusive
+
+    path = Path(target)
+    with exclusive(path.with_name(path.name + ".lock")):  # the suite's workers add theirs one at a time
+        summary = Counter(json.loads(path.read_text())) if path.is_file() else Counter()
+        summary.update({f"{what} {outcome}": n for (what, outcome), n in OUTCOMES.items()})
+        path.write_text(json.dumps(dict(sorted(summary.items())), indent=1) + "\n")
+
+
+atexit.register(_report)

@@ -83,7 +83,7 @@ def test_bad_episodes_and_actions_are_refused_in_one_line():
         FreewayEpisode(mode=8)
     with pytest.raises(ConfigError, match=r"noop_start=31 is invalid .*valid range \[0, 30\]"):
         FreewayEpisode(noop_start=31)
-    with pytest.raises(ValueError, match=r"action=3 is invalid; valid range \[0, 2\]"):
+    with pytest.raises(ValueError, match=r"action=3 is invalid \(valid range \[0, 2\]\)"):
         FreewayGame().step(3)
 
 

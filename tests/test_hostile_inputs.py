@@ -10,14 +10,12 @@ reaches its work, which the harness stops before anything runs (`Accepted`).
 from __future__ import annotations
 
 import argparse
-import atexit
 import io
 import json
 import os
 import re
 import shutil
 import stat
-from collections import Counter
 from contextlib import ExitStack, redirect_stderr, redirect_stdout
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,6 +50,7 @@ from dynplan.models import checkpoint
 from dynplan.models.weights import pretrained_path
 from tests.hostile import (
     LOG_DAMAGE,
+    OUTCOMES,
     bad_values,
     damage_json,
     damage_json_lines,
@@ -61,7 +60,6 @@ from tests.hostile import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
-OUTCOMES: Counter = Counter()
 
 
 class Accepted(BaseException):
@@ -482,13 +480,3 @@ def test_damaged_weights_are_refused_in_one_line(how, where, stage, reader, scen
     else:
         argv = [stage, *argv[1:], "--init-from", str(weights)]
     _run_damaged(command, argv, weights, scene, f"weights:{how}")
-
-
-def _report() -> None:
-    target = os.environ.get("DYNPLAN_HARNESS_REPORT")
-    if target and OUTCOMES:
-        summary = {f"{what} {outcome}": n for (what, outcome), n in sorted(OUTCOMES.items())}
-        Path(target).write_text(json.dumps(summary, indent=1) + "\n")
-
-
-atexit.register(_report)

@@ -308,3 +308,56 @@ def test_a_code_array_with_damaged_metadata_is_removed_to_be_encoded_again(store
     assert damage.problem == "fill value is 7 (the format's: 0)"
     assert damage.repaired and "the next `python -m flows.train vqvae` of its model encodes it again" in damage.action
     assert not (store / "codes_test").exists() and verify_store(store).damage == []
+
+
+def _write_through_zarr(store: Path, name: str, row: int, change) -> None:
+    """Change row `row` of array `name` as any Zarr writer would: a valid chunk, a valid checksum."""
+    array = zarr.open_group(str(store), mode="r+", use_consolidated=False)[name]
+    values = array[row]
+    array[row] = change(values)
+
+
+def test_what_a_chunk_holds_is_checked_not_only_its_checksum(store, recorded_logs):
+    """A pixel outside the world's values, a seed outside its range, a goal off the frame: each written with a
+    valid checksum, each reported with its episode and repaired from the logs."""
+
+    def pixel(frames):
+        frames[5, 3, 4] = 255
+        return frames
+
+    _write_through_zarr(store, "frames", 1, pixel)
+    zarr.open_group(str(store), mode="r+", use_consolidated=False)["seed"][2] = -7
+    _write_through_zarr(store, "goal", 3, lambda goal: np.where(np.arange(len(goal))[:, None] == 9, np.nan, goal))
+    problems = {d.array: d.problem for d in verify_store(store).damage}
+    assert problems["frames"].startswith("episode 1 holds pixel value 255 at frame 5, row 3, column 4, not one of")
+    assert problems["seed"] == "episode 2 has seed -7, outside the world's [0, 4611686018427387904]"
+    assert problems["goal"].startswith("episode 3's goal at frame 9 is (nan, nan), not on the 48 × 48 frame")
+    assert all(d.repaired for d in verify_store(store, recorded_logs).damage)
+    assert verify_store(store).damage == []
+
+
+def test_training_reads_refuse_what_is_not_an_episode(store):
+    """A model never trains on a missing chunk's fill values or on a pixel outside the world's."""
+    (store / "frames" / "c" / "2" / "0" / "0" / "0").unlink()
+    with pytest.raises(ChunkError, match=r"chunk c/2/0/0/0 \(episode 2\) is damaged: the chunk file is missing"):
+        FrameDataset(store, "all")  # at once, before any batch
+
+
+def test_a_pixel_outside_the_worlds_values_is_refused_when_read(store):
+    def pixel(frames):
+        frames[0, 0, 0] = 7
+        return frames
+
+    _write_through_zarr(store, "frames", 4, pixel)
+    dataset = FrameDataset(store, "all")
+    with pytest.raises(ChunkError, match="episode 4 holds pixel value 7 at frame 0, row 0, column 0"):
+        dataset[4 * 407]
+
+
+def test_a_chunk_of_fill_values_is_written_so_a_fresh_store_verifies_intact(tmp_path, recorded_logs):
+    """Seed 0 alone: the `seed` chunk holds only the fill value, which Zarr would not write; dynplan writes every
+    chunk, so `--verify` finds the store intact and a missing chunk is always damage."""
+    store = tmp_path / "seed0.zarr"
+    build_frame_store_from_logs(store, list_logs(recorded_logs)[:1])
+    assert (store / "seed" / "c" / "0").is_file()
+    assert verify_store(store).damage == []

@@ -321,10 +321,11 @@ def test_load_world_model_names_the_registered_configurations_and_suggests_only_
     with pytest.raises(ValueError, match=rf"^model must be one of {known}, got 'nosuch'$") as error:
         load_world_model(model="nosuch")
     assert "flows.train" not in str(error.value)
-    for settings, message in [({"samples": 2.5}, "samples must be an integer in [0, 64]; got 2.5"),
-                              ({"futures": -1}, "futures must be an integer in [0, 64]; got -1"),
-                              ({"samples": 10**6}, "samples must be an integer in [0, 64]; got 1000000")]:  # fmt: skip
-        assert _refusal(functools.partial(load_world_model, model="paper", **settings)) == message
+    for settings, message in [({"samples": 2.5}, "samples=2.5 is invalid (a float, not an integer)"),
+                              ({"futures": -1}, "futures=-1 is invalid (valid range [0, 64])"),
+                              ({"samples": 10**6}, "samples=1000000 is invalid (valid range [0, 64])")]:  # fmt: skip
+        refused = _refusal(functools.partial(load_world_model, model="paper", **settings))
+        assert refused == f"load_world_model: {message}"
     from dynplan.models.world_model import world_model_parts
 
     with pytest.raises(CheckpointError, match="configuration 'nosuch' is not registered$") as error:

@@ -2,7 +2,9 @@
 and reads that name the damaged chunk.
 
 Every chunk is zstd-compressed and then carries a CRC-32C of its compressed bytes (Zarr v3's `crc32c` codec), so
-a flipped byte is an error on read, in any Zarr reader, instead of wrong pixels. Rows are appended by writing them
+a flipped byte is an error on read, in any Zarr reader, instead of wrong pixels. Every chunk is written, even one
+that holds only the fill value (which Zarr would leave out), so a missing chunk file is always damage, never a chunk of
+zeros: `read` refuses it rather than return fill values. Rows are appended by writing them
 through a view with the larger shape, which is never saved, and only then resizing the array: a reader that
 knows nothing of dynplan sees the old shape, with complete rows, until the new rows are all written.
 """
@@ -20,6 +22,7 @@ import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
 from dynplan.cli import InputError
+from dynplan.data.contents import Check
 
 #: Bytes-to-bytes codecs of every array dynplan writes: compression, then the checksum of what is stored.
 COMPRESSORS = (ZstdCodec(level=3), Crc32cCodec())
@@ -39,7 +42,16 @@ def staged(array: zarr.Array, rows: int) -> zarr.Array:
     """A view of `array` with `rows` rows along its first axis whose shape is never saved: what is written through
     it is invisible to every reader until `array.resize` commits the new shape."""
     metadata = array.metadata.update_shape((rows, *array.shape[1:]))
-    return zarr.Array(zarr.AsyncArray(metadata=metadata, store_path=array.store_path))
+    return zarr.Array(zarr.AsyncArray(metadata=metadata, store_path=array.store_path, config=WRITE_EVERY_CHUNK))
+
+
+#: How dynplan writes: every chunk, one of fill values too (a missing chunk is then damage).
+WRITE_EVERY_CHUNK = {"write_empty_chunks": True}
+
+
+def writable(array: zarr.Array) -> zarr.Array:
+    """`array`, writing every chunk it is given (`WRITE_EVERY_CHUNK`)."""
+    return array.with_config(WRITE_EVERY_CHUNK)
 
 
 @dataclass(frozen=True)
@@ -73,32 +85,46 @@ def chunk_file(store: str | os.PathLike, array: zarr.Array, key: str) -> Path:
     return Path(store, array.path, key)
 
 
-def chunk_problem(store: str | os.PathLike, array: zarr.Array, chunk: Chunk) -> str | None:
-    """Why `chunk` cannot be read (None: it reads). A missing chunk is a problem too: Zarr would return its fill
-    value for it without a word."""
+def chunk_problem(store: str | os.PathLike, array: zarr.Array, chunk: Chunk, check: Check | None = None) -> str | None:
+    """Why `chunk` cannot be read, or (`check`) what it holds cannot be trusted (None: it reads). A missing chunk is a
+    problem too: Zarr would return its fill value for it without a word."""
     if not chunk_file(store, array, chunk.key).is_file():
         return "the chunk file is missing"
     try:
-        array[chunk.region]
+        values = array[chunk.region]
     except (ValueError, RuntimeError) as error:  # crc32c: ValueError; zstd: RuntimeError
         return "its CRC-32C does not match its bytes" if "checksum do not match" in str(error) else str(error)
-    return None
+    return check(values, chunk.rows.start) if check else None
 
 
-def read(store: str | os.PathLike, array: zarr.Array, selection, describe: Callable[[range], str] | None = None):
-    """`array[selection]`, or a ChunkError naming the store, the array, the damaged chunk and (through
-    `describe(rows)`) the episodes in it. `selection` is an int or a slice along the first axis."""
+def read(
+    store: str | os.PathLike,
+    array: zarr.Array,
+    selection,
+    describe: Callable[[range], str] | None = None,
+    check: Check | None = None,
+):
+    """`array[selection]`, or a ChunkError naming the store, the array, the damaged (or missing) chunk and (through
+    `describe(rows)`) the episodes in it; with `check`, also where what it holds cannot be trusted. `selection` is
+    an int or a slice along the first axis."""
+    first = selection if isinstance(selection, int) else (selection.start or 0)
+    last = first + 1 if isinstance(selection, int) else (selection.stop or array.shape[0])
+    touched = [chunk for chunk in chunks(array, last) if chunk.rows.stop > first]
+    for chunk in touched:
+        if not chunk_file(store, array, chunk.key).is_file():
+            raise damaged(store, array, chunk, "the chunk file is missing", describe)
     try:
-        return array[selection]
+        values = array[selection]
     except (ValueError, RuntimeError) as error:
-        first = selection if isinstance(selection, int) else (selection.start or 0)
-        last = first + 1 if isinstance(selection, int) else (selection.stop or array.shape[0])
-        for chunk in chunks(array, last):
-            if chunk.rows.stop > first:
-                problem = chunk_problem(store, array, chunk)
-                if problem:
-                    raise damaged(store, array, chunk, problem, describe) from error
+        for chunk in touched:
+            problem = chunk_problem(store, array, chunk)
+            if problem:
+                raise damaged(store, array, chunk, problem, describe) from error
         raise
+    problem = check(values[None] if isinstance(selection, int) else values, first) if check else None
+    if problem:
+        raise damaged(store, array, touched[0], problem, describe)
+    return values
 
 
 def damaged(
@@ -117,8 +143,12 @@ def damaged(
     )
     return ChunkError(
         f"{store}: array {array.basename!r}, chunk {chunk.key} ({episodes}) is damaged: {problem}; "
-        f"check and repair the store with: python -m flows.build_datasets --verify {store} LOG_DIR"
+        + VERIFY.format(store=store)
     )
+
+
+#: What to run on a damaged store.
+VERIFY = "check and repair the store with: python -m flows.build_datasets --verify {store} LOG_DIR"
 
 
 def write_rows(array: zarr.Array, start: int, values: np.ndarray) -> None:

@@ -12,9 +12,11 @@ import json
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Annotated
 
 from pydantic import Field
 
+from dynplan.arguments import Bounds, checked
 from dynplan.config import Config
 from dynplan.files import stale_temporaries as stale_files
 from dynplan.files import write_bytes_atomic
@@ -52,11 +54,12 @@ def log_path(out_dir: str | os.PathLike, seed: int) -> Path:
     return Path(out_dir) / f"episode_{seed:010d}.mcap"
 
 
+@checked
 def record_episode(
     out_dir: str | os.PathLike,
-    seed: int,
+    seed: Annotated[int, Bounds(0, 2**62)],
     config: Config | dict | None = None,
-    n_frames: int | None = None,
+    n_frames: Annotated[int, Bounds(1, 100_001)] | None = None,
     world_name: str = DEFAULT_WORLD,
 ) -> RecordResult:
     """Make sure `out_dir` holds the log of the episode `seed` of a world under `config` (`n_frames` frames; a

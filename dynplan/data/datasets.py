@@ -5,7 +5,8 @@ context + 1 target, for the PixelCNN; a longer context repeats frame 0 before th
 The split is a pure function of each episode's seed, so it never changes as the store grows and an episode is
 never in both splits: a world with few episodes names its validation seeds, and those no model trains on, in its
 spec (`dynplan.world`); the others' are drawn by a hash of the seed. Episodes are read whole (one Zarr
-chunk) and kept in memory once read.
+chunk) and kept in memory once read; frames are checked as they are read (a missing chunk, a pixel value outside the
+world's: `dynplan.data.contents`), so no model trains on what is not an episode.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ import torch
 import zarr
 from torch.utils.data import Dataset
 
-from dynplan.data.chunks import read
+from dynplan.data.chunks import chunk_file, chunks, damaged, read
+from dynplan.data.contents import store_checks
 from dynplan.data.history import context_indices, first_target
 from dynplan.data.store import store_world
 from dynplan.world import World, world
@@ -60,18 +62,33 @@ class _EpisodeArray(Dataset):
         n_episodes = int(group.attrs.get("episodes", 0))  # committed episodes (arrays may run longer)
         n_episodes = min(n_episodes, int(self.array.attrs.get("episodes", n_episodes)))  # e.g. codes not yet built
         self.seeds = read(self.store, group["seed"], slice(0, n_episodes))
-        validation, held_out = split_of(world(store_world(dict(group.attrs))), self.seeds[:n_episodes], val_fraction)
+        entry = world(store_world(dict(group.attrs)))
+        validation, held_out = split_of(entry, self.seeds[:n_episodes], val_fraction)
+        self._check = store_checks(entry, dict(group.attrs)).get(array)
         keep = {"train": ~validation & ~held_out, "validation": validation, "all": ~held_out}[split]
         self.episodes = np.nonzero(keep)[0]
         self.n_frames = self.array.shape[1]
+        self._check_present(n_episodes)
         self._cache: dict[int, np.ndarray] = {}
+
+    def _check_present(self, n_episodes: int) -> None:
+        """A ChunkError before any training if a chunk of the split's episodes is missing (Zarr would give blank
+        frames for it)."""
+        wanted = set(self.episodes.tolist())
+        for chunk in chunks(self.array, n_episodes):
+            if wanted.intersection(chunk.rows) and not chunk_file(self.store, self.array, chunk.key).is_file():
+                raise damaged(self.store, self.array, chunk, "the chunk file is missing")
 
     def episode(self, i: int) -> np.ndarray:
         """All frames (T, …) of the split's i-th episode (read on first use, then kept)."""
         episode = int(self.episodes[i])
         if episode not in self._cache:
             self._cache[episode] = read(
-                self.store, self.array, episode, lambda rows: f"episode {episode}, seed {self.seeds[episode]}"
+                self.store,
+                self.array,
+                episode,
+                lambda rows: f"episode {episode}, seed {self.seeds[episode]}",
+                self._check,
             )
         return self._cache[episode]
 

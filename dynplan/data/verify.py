@@ -1,7 +1,9 @@
 """Check every chunk of a frames store and repair damaged episodes from their logs.
 
 `verify_store` reads each chunk of each array up to the committed episode count and reports every chunk that
-fails its checksum, does not decode or is missing, naming the array, the chunk and the episodes in it. Given the
+fails its checksum, does not decode, is missing or holds what the array cannot (a pixel value outside the world's,
+a seed outside its range, a goal off the frame: `dynplan.data.contents`), naming the array, the chunk and the
+episodes in it. Given the
 folder of logs (or their `LogInfo`s), it rewrites each damaged chunk of the frames store from the logs of the
 episodes it holds, finding each episode's log by its SHA-256, else its log name, else its seed, and checks the
 chunk again. A damaged chunk of a code array (`codes_<name>`) is derived data: its encoding is marked undone
@@ -28,7 +30,8 @@ from pathlib import Path
 import numpy as np
 import zarr
 
-from dynplan.data.chunks import Chunk, chunk_file, chunk_problem, chunks, is_checksummed
+from dynplan.data.chunks import Chunk, chunk_file, chunk_problem, chunks, is_checksummed, writable
+from dynplan.data.contents import Check, store_checks
 from dynplan.data.metadata import REBUILD, REENCODE, StoreMetadata, check_metadata
 from dynplan.data.store import (
     LogInfo,
@@ -39,9 +42,11 @@ from dynplan.data.store import (
     load_frames,
     lock_path,
     sha256_file,
+    store_world,
 )
 from dynplan.files import exclusive, write_bytes_atomic
 from dynplan.progress import progress
+from dynplan.world import world
 
 
 @dataclass
@@ -125,7 +130,8 @@ def verify_store(
         group = zarr.open_group(store, mode="r+" if repair else "r", use_consolidated=False)
         names = [name for name in meta.shapes if name not in meta.damaged]
         report.damage.extend(_short_arrays(meta, n))
-        found = _check_chunks(store, group, names, n, report)
+        checks = store_checks(world(store_world(dict(group.attrs))), dict(group.attrs))
+        found = _check_chunks(store, group, names, n, report, checks)
         bad = {name: {c.key for c, _ in found[name]} for name in names}
         identity = {
             name: _column(group[name], n, bad[name])
@@ -135,7 +141,7 @@ def verify_store(
         describe = _describer(identity, n)
         report.damage.extend(Damage(name, c.key, c.rows, p, describe(c.rows)) for name in names for c, p in found[name])
         if repair and report.damage:
-            repairer = _Repair(store, group, n, identity, logs, meta)
+            repairer = _Repair(store, group, n, identity, logs, meta, checks)
             for item in report.damage:
                 repairer.repair(item)
             repairer.consolidate(report.damage)
@@ -167,8 +173,11 @@ def _short_arrays(meta: StoreMetadata, n: int) -> list[Damage]:
     return damage
 
 
-def _check_chunks(store: str, group: zarr.Group, names: list[str], n: int, report: VerifyReport) -> dict:
-    """Read every chunk of the arrays `names` up to their committed rows: {array: [(chunk, problem)]}."""
+def _check_chunks(
+    store: str, group: zarr.Group, names: list[str], n: int, report: VerifyReport, checks: dict[str, Check]
+) -> dict:
+    """Read every chunk of the arrays `names` up to their committed rows, checking what each holds where `checks`
+    says what it may: {array: [(chunk, problem)]}."""
     found: dict[str, list[tuple[Chunk, str]]] = {}
     for name in progress(names, total=len(names), description="verify"):
         array = group[name]
@@ -179,7 +188,7 @@ def _check_chunks(store: str, group: zarr.Group, names: list[str], n: int, repor
         found[name] = []
         for chunk in chunks(array, rows):
             report.chunks += 1
-            problem = chunk_problem(store, array, chunk)
+            problem = chunk_problem(store, array, chunk, checks.get(name))
             if problem:
                 found[name].append((chunk, problem))
     return found
@@ -207,9 +216,17 @@ class _Repair:
     """Rewrites damaged chunks from the logs of the episodes they hold."""
 
     def __init__(
-        self, store: str, group: zarr.Group, n: int, identity: dict[str, list], logs, meta: StoreMetadata
+        self,
+        store: str,
+        group: zarr.Group,
+        n: int,
+        identity: dict[str, list],
+        logs,
+        meta: StoreMetadata,
+        checks: dict[str, Check],
     ) -> None:
         self.store, self.group, self.n, self.identity, self.meta = store, group, n, identity, meta
+        self.checks = checks
         if logs is None:
             self.logs: list[LogInfo | Path] = []
         elif isinstance(logs, (str, os.PathLike)):
@@ -296,8 +313,9 @@ class _Repair:
         }[array.basename]()
         chunk_file(self.store, array, key).unlink(missing_ok=True)  # a damaged chunk cannot be updated
         region = (slice(rows.start, rows.stop), *(slice(None),) * (array.ndim - 1))
-        array[region] = values
-        return chunk_problem(self.store, array, next(c for c in chunks(array) if c.key == key))
+        writable(array)[region] = values
+        chunk = next(c for c in chunks(array) if c.key == key)
+        return chunk_problem(self.store, array, chunk, self.checks.get(array.basename))
 
     def _repair_metadata(self, item: Damage) -> None:
         """Group attributes the format determines are set; a code array is removed (derived data, encoded again);

@@ -13,9 +13,11 @@ length: the first 203 frames of a 407-frame world are the 203-frame world.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 
+from dynplan.arguments import Bounds, checked
 from dynplan.env.config import AGENT_START_MARGIN, GOAL_VALUE, RoadConfig, spawn_probability
 
 #: Number of goal headings: 1°, 46°, …, 316°.
@@ -211,12 +213,15 @@ def paint(config: RoadConfig, layout: Layout, traffic: Traffic, goal: np.ndarray
     return frames
 
 
-def generate_world(config: RoadConfig | None = None, seed: int = 0, n_frames: int | None = None) -> World:
+@checked
+def generate_world(
+    config: RoadConfig | None = None,
+    seed: Annotated[int, Bounds(0, 2**64 - 1)] = 0,
+    n_frames: Annotated[int, Bounds(1, 100_000)] | None = None,
+) -> World:
     """Generate one episode of `n_frames` frames (default T for the config's agent speed) from `seed`."""
     config = config or RoadConfig()
     n_frames = config.max_steps if n_frames is None else n_frames
-    if n_frames < 1:
-        raise ValueError(f"n_frames must be >= 1, got {n_frames}")
     draws = draw(config, seed, n_frames)
     traffic = spawn_traffic(config, draws)
     goal = goal_track(config, draws, n_frames)

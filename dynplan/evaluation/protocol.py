@@ -10,9 +10,11 @@ import os
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
+from typing import Annotated
 
 import numpy as np
 
+from dynplan.arguments import Bounds, checked
 from dynplan.data.collect import log_path
 from dynplan.env.config import RoadConfig
 from dynplan.env.road import World, generate_world
@@ -33,7 +35,12 @@ def case_agent(case: Case, world: World, spec: AgentSpec | None = None) -> tuple
     return agent.build(world, case.agent_speed, case.planner_seed())
 
 
-def plan_episode(world: World | int, spec: AgentSpec | None = None, agent_speed: float = 1.0) -> EpisodeResult:
+@checked
+def plan_episode(
+    world: World | Annotated[int, Bounds(0, 2**62)],
+    spec: AgentSpec | None = None,
+    agent_speed: Annotated[float, Bounds(0.0, 8.0)] = 1.0,
+) -> EpisodeResult:
     """Play one episode — a recorded `world`, or the world of a seed — with the agent `spec` (default: samples5 on
     the default world model at k = 3), its planner seeded as the evaluation seeds it. Returns the outcome, steps,
     decision times and the agent's track."""

@@ -81,3 +81,14 @@ def read_world_recording(path: str | os.PathLike, world_name: str, wanted: str) 
         kind = recorded.metadata.get("kind")
         raise LogError(path, f"is a {recorded.entry.name} log of kind {kind!r}; {wanted}")
     return recorded
+
+
+def of_world(log: EpisodeLog, world_name: str) -> EpisodeLog:
+    """`log`, if it records the world `world_name`; else a LogError naming the world it records and the `--world`
+    that reads it."""
+    found = log.entry.name
+    if found != world_name:
+        raise LogError(
+            log.path, f"is a {found} log, not one of the {world_name} world; read it with --world {found}"
+        )
+    return log

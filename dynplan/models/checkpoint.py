@@ -3,9 +3,11 @@ stages' loaders. Training writes through `save`; everything that reads weights r
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
+import shutil
 from collections.abc import Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -45,7 +47,14 @@ def save(path: str | os.PathLike, state: dict[str, Any]) -> Path:
     if isinstance(state.get("model"), Mapping):
         state = {**state, "model_sha256": tensors_digest(state["model"])}
     with atomic_path(path) as tmp:
-        torch.save(state, tmp)
+        try:
+            torch.save(state, tmp)
+        except RuntimeError as error:  # torch's zip writer reports a failed write as "[enforce fail at …]"
+            if "inline_container" not in str(error) and "PytorchStreamWriter" not in str(error):
+                raise
+            free = shutil.disk_usage(Path(path).parent).free
+            why = f"the checkpoint could not be written: {free:,} bytes free there"
+            raise OSError(errno.ENOSPC if free < 1 << 20 else errno.EIO, why, str(path)) from error
     return Path(path)
 
 

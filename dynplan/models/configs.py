@@ -147,7 +147,10 @@ class PixelCNNConfig(Config):
     condition_channels: int = Field(64, ge=1, le=1024, description="channels of the conditioning map")
     learning_rate: float = Field(3e-4, gt=0, le=1.0, description="Adam learning rate")
     learning_rate_halflife: int | None = Field(
-        None, ge=1, description="windows after which the learning rate halves (exponential decay; None: constant)"
+        None,
+        ge=1,
+        le=10**12,
+        description="windows after which the learning rate halves (exponential decay; None: constant)",
     )
     batch_size: int = Field(64, ge=1, le=8192, description="windows per batch")
     codebook_init: bool = Field(

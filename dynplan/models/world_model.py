@@ -21,10 +21,12 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 import torch
 
+from dynplan.arguments import Bounds, checked
 from dynplan.env.config import FREE, GOAL_VALUE
 from dynplan.models import checkpoint
 from dynplan.models.caution import Caution, merge_samples, unsure_obstacles, widen_obstacles
@@ -349,12 +351,13 @@ def world_model_parts(paths: tuple[Path, Path], model: str = "default") -> tuple
     return tokenizer, prior
 
 
+@checked
 def load_world_model(
     path: str | os.PathLike | None = None,
     model: str = "default",
-    samples: int = 0,
-    futures: int = 0,
-    seed: int = 0,
+    samples: Annotated[int, Bounds(0, 64)] = 0,
+    futures: Annotated[int, Bounds(0, 64)] = 0,
+    seed: Annotated[int, Bounds(0, 2**62)] = 0,
     caution: Mapping[str, float] | None = None,
     device: str = "cpu",
 ) -> LearnedWorldModel:

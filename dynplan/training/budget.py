@@ -21,7 +21,7 @@ class TrainBudget(Config):
     val_frames: int = Field(2000, ge=1, le=1_000_000, description="validation items scored after each epoch")
     max_minutes: float | None = Field(None, gt=0, description="stop (resumably) after this much wall time")
     threads: int | None = Field(None, ge=1, le=256, description="torch threads (default: all cores)")
-    seed: int = Field(0, ge=0, description="seed of initialisation and batch order")
+    seed: int = Field(0, ge=0, le=2**62, description="seed of initialisation and batch order")
     init_from: str | None = Field(None, description="checkpoint whose model weights start the run (fine-tuning)")
     device: str | None = Field(None, description="torch device to train on, e.g. 'cuda' (default: the CPU)")
 

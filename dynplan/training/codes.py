@@ -18,7 +18,8 @@ import numpy as np
 import torch
 import zarr
 
-from dynplan.data.chunks import COMPRESSORS, commit_rows, staged
+from dynplan.data.chunks import COMPRESSORS, VERIFY, ChunkError, chunk_file, chunks, commit_rows, damaged, staged
+from dynplan.data.contents import pixel_check
 from dynplan.data.store import committed_checksums, episodes_digest
 from dynplan.files import sha256_file
 from dynplan.models.checkpoint import VQVAE_KIND, cached
@@ -29,9 +30,13 @@ def _model(checkpoint: str):
     return cached(VQVAE_KIND, checkpoint)
 
 
-def _encode_block(block: np.ndarray, checkpoint: str) -> np.ndarray:
+def _encode_block(block: np.ndarray, checkpoint: str, store: str, block_info=None) -> np.ndarray:
     torch.set_num_threads(1)  # dask runs one block per thread/worker already
     model = _model(checkpoint)
+    first = block_info[0]["array-location"][0][0] if block_info else 0
+    problem = pixel_check(model.config.values)(block, first)
+    if problem:  # encoded, it would be a code of some other picture
+        raise ChunkError(f"{store}: array 'frames': {problem}; {VERIFY.format(store=store)}")
     E, T = block.shape[:2]
     codes = model.encode(torch.from_numpy(np.ascontiguousarray(block.reshape(E * T, *block.shape[2:]))))
     return codes.numpy().astype(np.uint16).reshape(E, T, *codes.shape[1:])
@@ -56,6 +61,7 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         done = int(group[array_name].attrs.get("episodes", 0))
         if done > E or group[array_name].attrs.get("source_digest") != episodes_digest(checksums[:done]):
             done = 0
+    _present(store, frames, range(done, E))  # before anything is written: a missing chunk would encode as blank
     if done == 0:
         if array_name in group:
             del group[array_name]
@@ -84,13 +90,22 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
             warnings.filterwarnings("ignore", message="Consolidated metadata is currently not part")
             zarr.consolidate_metadata(store)
 
-    # In batches, each recorded as done once stored: an interrupted encoding resumes after the last batch.
+    # In batches, each recorded as done once stored: an interrupted encoding resumes after the last batch, and the
+    # consolidated metadata names the array from its creation on (a reader checks the two agree).
+    record(done)
     for start in progress(range(done, E, batch), total=len(range(done, E, batch)), description=array_name):
         stop = min(E, start + batch)
         source = da.from_zarr(frames)[start:stop]
-        encoded = source.map_blocks(_encode_block, checkpoint, dtype=np.uint16, chunks=(1, T, h, w))
+        encoded = source.map_blocks(_encode_block, checkpoint, store, dtype=np.uint16, chunks=(1, T, h, w))
         da.store(encoded, staged(codes, stop), regions=(slice(start, stop),), lock=False)
         commit_rows(codes, stop)  # written, then shown
         record(stop)
     record(E)
     return array_name
+
+
+def _present(store: str, frames: zarr.Array, rows: range) -> None:
+    """A ChunkError if a chunk of the episodes `rows` is missing (Zarr would read it as blank frames)."""
+    for chunk in chunks(frames, rows.stop):
+        if chunk.rows.start >= rows.start and not chunk_file(store, frames, chunk.key).is_file():
+            raise damaged(store, frames, chunk, "the chunk file is missing")

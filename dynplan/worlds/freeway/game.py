@@ -21,10 +21,12 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 from pydantic import Field
 
+from dynplan.arguments import ArgumentError, Array, Bounds, checked
 from dynplan.config import Config
 from dynplan.extras import require
 
@@ -180,16 +182,29 @@ class FreewayGame(ChickenGame):
         """The world without the agent now: the shadow's lanes, (154, 152) uint8 palette indices, row 0 the bottom."""
         return lane_frame(self.shadow.getScreen())
 
-    def step(self, action: int) -> FreewayStep:
+    @checked
+    def step(self, action: Action) -> FreewayStep:
         """Play `action` (0 NOOP, 1 UP, 2 DOWN) for one agent step in the real game; the shadow plays NOOP."""
-        if action not in (0, 1, 2):
-            raise ValueError(f"action={action} is invalid; valid range [0, 2] ({', '.join(ACTIONS)})")
         reward = self.advance(action)
         return FreewayStep(self.world_frame(), self.chicken, reward, self.over())
 
 
-def lane_frame(screen: np.ndarray) -> np.ndarray:
+#: An agent's action, 0 NOOP, 1 UP, 2 DOWN; a lane frame (row 0 the bottom); the emulator's screen (palette
+#: indices, or RGB).
+Action = Annotated[int, Bounds(0, len(ACTIONS) - 1)]
+LaneFrame = Annotated[np.ndarray, Array(shape=(LANE_HEIGHT, LANE_WIDTH), kinds="ui")]
+Screen = Annotated[np.ndarray, Array(ndim=(2, 3), kinds="ui")]
+#: The emulator's screen: 210 rows, 160 columns.
+SCREEN_SHAPE = (210, 160)
+
+
+@checked
+def lane_frame(screen: Screen) -> np.ndarray:
     """A screen's lanes as a world frame: (154, 152), row 0 the bottom lane's last row."""
+    if screen.shape[:2] != SCREEN_SHAPE:
+        raise ArgumentError(
+            f"lane_frame: screen of shape {screen.shape} is invalid; it takes the emulator's {SCREEN_SHAPE}"
+        )
     return np.ascontiguousarray(screen[LANE_ROWS, LANE_COLUMNS][::-1])
 
 
@@ -232,14 +247,13 @@ class FreewayWorld:
         return self.seed
 
 
-def record_mode(mode: int, n_frames: int | None = None) -> FreewayWorld:
+@checked
+def record_mode(
+    mode: Annotated[int, Bounds(0, len(MODES) - 1)], n_frames: Annotated[int, Bounds(1, GAME_STEPS + 1)] | None = None
+) -> FreewayWorld:
     """The world of game `mode` from the game's start: the NOOP shadow's lanes at each of its first `n_frames`
     steps (default the whole game, 2,049 frames)."""
     n_frames = GAME_STEPS + 1 if n_frames is None else n_frames
-    if mode not in MODES:
-        raise ValueError(f"mode={mode} is invalid; valid range [0, {len(MODES) - 1}]")
-    if not 1 <= n_frames <= GAME_STEPS + 1:
-        raise ValueError(f"n_frames={n_frames} is invalid; valid range [1, {GAME_STEPS + 1}] (the game's frames)")
     ale = emulator(mode)
     frames = np.empty((n_frames, *lane_frame(ale.getScreen()).shape), np.uint8)
     frames[0] = lane_frame(ale.getScreen())
@@ -251,10 +265,15 @@ def record_mode(mode: int, n_frames: int | None = None) -> FreewayWorld:
     return FreewayWorld(FreewayConfig(), mode, frames)
 
 
-def chicken_step(chicken: Chicken, action: int, before: np.ndarray, after: np.ndarray) -> tuple[Chicken, float]:
+@checked
+def chicken_step(chicken: Chicken, action: Action, before: LaneFrame, after: LaneFrame) -> tuple[Chicken, float]:
     """The chicken after one agent step of `action` (0 NOOP, 1 UP, 2 DOWN) from the world's lane frame `before` to
     `after` (as `FreewayGame.world_frame` gives them, or a world model imagines them), and the step's reward (1 for
     a crossing): `chicken_frames` over the step's frames as `step_frames` estimates them."""
+    if not (BOTTOM_Y <= chicken.y <= TOP_Y and 0 <= chicken.timer <= 255):
+        raise ArgumentError(
+            f"chicken_step: chicken={chicken} is invalid; y in [{BOTTOM_Y}, {TOP_Y}], timer in [0, 255] (a RAM byte)"
+        )
     return chicken_frames(chicken, action, step_frames(before, after))
 
 
@@ -334,10 +353,16 @@ def step_frames(before: np.ndarray, after: np.ndarray) -> np.ndarray:
     return drawn
 
 
-def extrapolated(observed: np.ndarray, k: int) -> np.ndarray:
+@checked
+def extrapolated(
+    observed: Annotated[np.ndarray, Array(shape=(None, LANE_HEIGHT, LANE_WIDTH), kinds="ui")],
+    k: Annotated[int, Bounds(1, 64)],
+) -> np.ndarray:
     """(k, H, W): the last of the `observed` lane frames (≥ 2) with each lane's cars moved on at their mean shift a
     step over `observed` (the sum of `lane_shifts` between consecutive frames over the steps), rounded at each step
     ahead: a world that keeps every lane at its recent speed."""
+    if len(observed) < 2:
+        raise ArgumentError(f"extrapolated: observed holds {len(observed)} frames; it takes 2 or more")
     shifts = np.sum([lane_shifts(a, b) for a, b in itertools.pairwise(observed)], axis=0) / (len(observed) - 1)
     frames = np.repeat(observed[-1][None], k, axis=0)
     for lane, shift in enumerate(shifts):

@@ -15,10 +15,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from operator import add
+from typing import Annotated
 
 import numpy as np
 from pydantic import Field
 
+from dynplan.arguments import Bounds, checked
 from dynplan.config import Config
 from dynplan.extras import require
 
@@ -92,7 +94,12 @@ def _move_balls(env) -> None:
             pass
 
 
-def record_world(config: MiniGridConfig, seed: int, n_frames: int | None = None) -> MiniGridWorld:
+@checked
+def record_world(
+    config: MiniGridConfig,
+    seed: Annotated[int, Bounds(0, 2**62)],
+    n_frames: Annotated[int, Bounds(1, 100_001)] | None = None,
+) -> MiniGridWorld:
     """The episode of `seed`: the room as reset, then each step's ball moves; `n_frames` (default the config's
     `max_steps`) frames."""
     require("minigrid", "minigrid", "--world minigrid")

@@ -285,10 +285,10 @@ def build_state(
     from dynplan.evaluation.agent import AgentSpec
     from dynplan.evaluation.cases import VALIDATION_SEED_START
     from dynplan.evaluation.protocol import world_agent
-    from dynplan.logs.recording import read_recorded_log
+    from dynplan.logs.recording import of_world, read_recorded_log
 
     if log is not None:
-        world = read_recorded_log(log).world()
+        world = of_world(read_recorded_log(log), "road").world()
     else:
         world = generate_world(RoadConfig(agent_speed=agent_speed), VALIDATION_SEED_START if seed is None else seed)
     imagined = None
