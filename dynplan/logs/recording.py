@@ -88,7 +88,5 @@ def of_world(log: EpisodeLog, world_name: str) -> EpisodeLog:
     that reads it."""
     found = log.entry.name
     if found != world_name:
-        raise LogError(
-            log.path, f"is a {found} log, not one of the {world_name} world; read it with --world {found}"
-        )
+        raise LogError(log.path, f"is a {found} log, not one of the {world_name} world; read it with --world {found}")
     return log
