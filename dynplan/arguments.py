@@ -41,8 +41,9 @@ class Bounds:
     hi: float | None = None
 
     def problem(self, value: float) -> str | None:
-        inside = (self.lo is None or value >= self.lo) and (self.hi is None or value <= self.hi)
-        if inside and not (isinstance(value, float) and math.isnan(value)):
+        if math.isnan(value):  # a Python or a numpy NaN
+            return "NaN is no number"
+        if (self.lo is None or value >= self.lo) and (self.hi is None or value <= self.hi):
             return None
         return f"valid range [{'-inf' if self.lo is None else self.lo}, {'inf' if self.hi is None else self.hi}]"
 
@@ -70,13 +71,13 @@ class Array:
             wanted = "(" + ", ".join("any" if s is None else str(s) for s in self.shape) + ")"
             return f"an array of shape {value.shape}; it takes {wanted}"
         if value.dtype.kind not in self.kinds:
-            return f"an array of {value.dtype}; it takes {_KIND_NAMES[self.kinds]}"
+            return f"an array of {value.dtype}; it takes {' or '.join(_KIND_NAMES[k] for k in self.kinds)}"
         if self.finite and value.dtype.kind == "f" and not np.isfinite(value).all():
             return "an array holding NaN or infinity"
         return None
 
 
-_KIND_NAMES = {"uifb": "numbers", "ui": "integers", "u": "unsigned integers", "f": "floats", "uif": "numbers"}
+_KIND_NAMES = {"u": "unsigned integers", "i": "integers", "f": "floats", "b": "bools"}
 
 #: Every function checked by `checked`, for the harness that draws bad arguments for each.
 CHECKED: list[Callable] = []
@@ -108,7 +109,7 @@ def _fits(value: Any, kind: Any) -> bool:
     if kind is float:
         return isinstance(value, int | float | np.integer | np.floating) and not isinstance(value, bool)
     if get_origin(kind) is Literal:
-        return any(value == option and type(value) is type(option) for option in get_args(kind))
+        return any(type(value) is type(option) and value == option for option in get_args(kind))
     origin = get_origin(kind) or kind
     return not isinstance(origin, type) or isinstance(value, origin)
 
@@ -135,8 +136,9 @@ def problem(value: Any, annotation: Any) -> str | None:
         kind = type(value).__name__
         return f"{'an' if kind[:1] in 'aeiouAEIOU' else 'a'} {kind}, not {taken}"
     why = None
-    for _, metadata in fitting:
-        checks = [m for m in metadata if isinstance(m, Bounds | Array)]
+    for kind, metadata in fitting:  # a union's constraints bind the members they are about
+        checks = [m for m in metadata if isinstance(m, Array if kind is np.ndarray else Bounds)]
+        checks = checks if kind in (int, float, np.ndarray) else []
         why = next((w for w in (m.problem(value) for m in checks) if w), None)
         if why is None:
             return None

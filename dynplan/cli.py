@@ -134,7 +134,9 @@ def file_system_error(error: BaseException) -> str | None:
         try:
             stream.flush()
         except OSError:
-            os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())  # nothing more to say there, at exit either
+            nowhere = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(nowhere, stream.fileno())  # nothing more to say there, at exit either
+            os.close(nowhere)
             return f"{name}: {FILE_SYSTEM[error.errno]}"
     return f"{FILE_SYSTEM[error.errno]} ({error.strerror or error})"
 

@@ -43,12 +43,20 @@ def _held_stderr() -> Iterator[list[str]]:
         os.dup2(held.fileno(), 2)
         try:
             yield said
-        finally:
-            sys.stderr.flush()
-            os.dup2(saved, 2)
-            os.close(saved)
-            held.seek(0)
-            said.append(held.read().decode(errors="replace"))
+        except BaseException:  # what was said is shown after all: it may say why
+            _restore(saved, held, said)
+            sys.stderr.write(said[0])
+            raise
+        _restore(saved, held, said)
+
+
+def _restore(saved: int, held, said: list[str]) -> None:
+    """Point file descriptor 2 back at `saved` and keep what `held` took in `said`."""
+    sys.stderr.flush()
+    os.dup2(saved, 2)
+    os.close(saved)
+    held.seek(0)
+    said.append(held.read().decode(errors="replace"))
 
 
 def load_prefect() -> None:
@@ -65,6 +73,7 @@ def load_prefect() -> None:
             Settings()
         except ValidationError as error:
             problems = [_named(e["input"], e["msg"]) for e in error.errors() if isinstance(e.get("input"), str)]
+            problems = problems or [" ".join(str(error).split())]  # no value to name a variable by: Prefect's words
     if problems:
         raise EnvironmentProblem("; ".join(problems))
     sys.stderr.write(said[0])

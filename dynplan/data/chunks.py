@@ -67,11 +67,12 @@ class Chunk:
         return range(self.region[0].start, self.region[0].stop)
 
 
-def chunks(array: zarr.Array, rows: int | None = None) -> Iterator[Chunk]:
-    """The chunks of `array` that hold any of its first `rows` rows (default: all of its rows)."""
+def chunks(array: zarr.Array, rows: int | None = None, start: int = 0) -> Iterator[Chunk]:
+    """The chunks of `array` that hold any of its rows `start` … `rows` − 1 (default: all of its rows)."""
     rows = array.shape[0] if rows is None else min(rows, array.shape[0])
     shape = (rows, *array.shape[1:])
     ranges = [range(0, -(-size // step)) for size, step in zip(shape, array.chunks, strict=True)]
+    ranges[0] = range(min(start // array.chunks[0], ranges[0].stop), ranges[0].stop)
     for coords in itertools.product(*ranges):
         region = tuple(
             slice(c * step, min(size, (c + 1) * step))
@@ -109,7 +110,7 @@ def read(
     an int or a slice along the first axis."""
     first = selection if isinstance(selection, int) else (selection.start or 0)
     last = first + 1 if isinstance(selection, int) else (selection.stop or array.shape[0])
-    touched = [chunk for chunk in chunks(array, last) if chunk.rows.stop > first]
+    touched = list(chunks(array, last, start=first))
     for chunk in touched:
         if not chunk_file(store, array, chunk.key).is_file():
             raise damaged(store, array, chunk, "the chunk file is missing", describe)

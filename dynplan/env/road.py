@@ -217,7 +217,7 @@ def paint(config: RoadConfig, layout: Layout, traffic: Traffic, goal: np.ndarray
 def generate_world(
     config: RoadConfig | None = None,
     seed: Annotated[int, Bounds(0, 2**64 - 1)] = 0,
-    n_frames: Annotated[int, Bounds(1, 100_000)] | None = None,
+    n_frames: Annotated[int, Bounds(1, 10**7)] | None = None,
 ) -> World:
     """Generate one episode of `n_frames` frames (default T for the config's agent speed) from `seed`."""
     config = config or RoadConfig()

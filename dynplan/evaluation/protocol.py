@@ -44,8 +44,9 @@ def plan_episode(
     """Play one episode — a recorded `world`, or the world of a seed — with the agent `spec` (default: samples5 on
     the default world model at k = 3), its planner seeded as the evaluation seeds it. Returns the outcome, steps,
     decision times and the agent's track."""
+    config = RoadConfig(agent_speed=agent_speed)  # the speed checked whatever the world
     if isinstance(world, int | np.integer):
-        world = generate_world(RoadConfig(agent_speed=agent_speed), int(world))
+        world = generate_world(config, int(world))
     spec = spec or AgentSpec()
     planner, forward = world_agent(world, spec, agent_speed)
     return run_episode(world, planner, forward, agent_speed, spec.rollout_steps)

@@ -22,8 +22,8 @@ from dynplan.evaluation.agent import LEARNED, AgentSpec
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.logs.format import step_row
 from dynplan.logs.live import LiveView
-from dynplan.logs.reader import EpisodeLog, LogError
-from dynplan.logs.recording import of_world, read_recorded_log
+from dynplan.logs.reader import EpisodeLog, LogError, read_episode_log
+from dynplan.logs.recording import check_recorded, of_world
 from dynplan.logs.writer import write_episode_log
 from dynplan.planning.episode import run_episode
 from dynplan.planning.forward import Prediction
@@ -44,7 +44,7 @@ def prepare(log: str | os.PathLike, agent: AgentSpec, agent_speed: float) -> tup
     (ConfigError) and the log (LogError): long enough for an episode at that speed."""
     agent.check_weights()  # loads (and caches) the checkpoints, or says which are missing
     RoadConfig(agent_speed=agent_speed)  # validates the speed before the log is read
-    recorded = of_world(read_recorded_log(log), "road")
+    recorded = check_recorded(of_world(read_episode_log(log), "road"))  # the world first: no other world is run
     config = RoadConfig.from_dict(recorded.config.model_dump(), agent_speed=agent_speed)
     if config.max_steps > recorded.n_frames:
         raise LogError(log, f"holds {recorded.n_frames} frames; agent speed {agent_speed:g} needs {config.max_steps}")

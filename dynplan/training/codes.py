@@ -30,10 +30,10 @@ def _model(checkpoint: str):
     return cached(VQVAE_KIND, checkpoint)
 
 
-def _encode_block(block: np.ndarray, checkpoint: str, store: str, block_info=None) -> np.ndarray:
+def _encode_block(block: np.ndarray, checkpoint: str, store: str, start: int, block_info=None) -> np.ndarray:
     torch.set_num_threads(1)  # dask runs one block per thread/worker already
     model = _model(checkpoint)
-    first = block_info[0]["array-location"][0][0] if block_info else 0
+    first = start + (block_info[0]["array-location"][0][0] if block_info else 0)  # the batch's episodes from `start`
     problem = pixel_check(model.config.values)(block, first)
     if problem:  # encoded, it would be a code of some other picture
         raise ChunkError(f"{store}: array 'frames': {problem}; {VERIFY.format(store=store)}")
@@ -96,7 +96,7 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
     for start in progress(range(done, E, batch), total=len(range(done, E, batch)), description=array_name):
         stop = min(E, start + batch)
         source = da.from_zarr(frames)[start:stop]
-        encoded = source.map_blocks(_encode_block, checkpoint, store, dtype=np.uint16, chunks=(1, T, h, w))
+        encoded = source.map_blocks(_encode_block, checkpoint, store, start, dtype=np.uint16, chunks=(1, T, h, w))
         da.store(encoded, staged(codes, stop), regions=(slice(start, stop),), lock=False)
         commit_rows(codes, stop)  # written, then shown
         record(stop)
@@ -106,6 +106,6 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
 
 def _present(store: str, frames: zarr.Array, rows: range) -> None:
     """A ChunkError if a chunk of the episodes `rows` is missing (Zarr would read it as blank frames)."""
-    for chunk in chunks(frames, rows.stop):
-        if chunk.rows.start >= rows.start and not chunk_file(store, frames, chunk.key).is_file():
+    for chunk in chunks(frames, rows.stop, start=rows.start):
+        if not chunk_file(store, frames, chunk.key).is_file():
             raise damaged(store, frames, chunk, "the chunk file is missing")

@@ -285,10 +285,11 @@ def build_state(
     from dynplan.evaluation.agent import AgentSpec
     from dynplan.evaluation.cases import VALIDATION_SEED_START
     from dynplan.evaluation.protocol import world_agent
-    from dynplan.logs.recording import of_world, read_recorded_log
+    from dynplan.logs.reader import read_episode_log
+    from dynplan.logs.recording import check_recorded, of_world
 
     if log is not None:
-        world = of_world(read_recorded_log(log), "road").world()
+        world = check_recorded(of_world(read_episode_log(log), "road")).world()
     else:
         world = generate_world(RoadConfig(agent_speed=agent_speed), VALIDATION_SEED_START if seed is None else seed)
     imagined = None
