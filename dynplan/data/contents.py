@@ -73,8 +73,10 @@ def store_checks(entry: World, attributes: dict) -> dict[str, Check]:
     """The check of each array of a store of the world `entry` with these group attributes (its config, height and
     width; a config that is not the world's leaves the frames unchecked: the metadata's check reports it)."""
     checks: dict[str, Check] = {"seed": seed_check(*entry.seeds)}
+    config = attributes.get("config")
     with contextlib.suppress(ConfigError):
-        checks["frames"] = pixel_check(entry.values(entry.config(attributes.get("config"))))
+        if isinstance(config, dict):  # else damaged metadata, which the metadata's check names
+            checks["frames"] = pixel_check(entry.values(entry.config(config)))
     if isinstance(attributes.get("height"), int) and isinstance(attributes.get("width"), int):
         checks["goal"] = goal_check(attributes["height"], attributes["width"])
     return checks
