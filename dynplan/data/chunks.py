@@ -98,6 +98,16 @@ def chunk_problem(store: str | os.PathLike, array: zarr.Array, chunk: Chunk, che
     return check(values, chunk.rows.start) if check else None
 
 
+def check_present(
+    store: str | os.PathLike, array: zarr.Array, rows: range, describe: Callable[[range], str] | None = None
+) -> None:
+    """A ChunkError naming the first chunk holding any of `rows` whose file is missing (Zarr would read its fill
+    values without a word)."""
+    for chunk in chunks(array, rows.stop, start=rows.start):
+        if not chunk_file(store, array, chunk.key).is_file():
+            raise damaged(store, array, chunk, "the chunk file is missing", describe)
+
+
 def read(
     store: str | os.PathLike,
     array: zarr.Array,
@@ -110,10 +120,8 @@ def read(
     an int or a slice along the first axis."""
     first = selection if isinstance(selection, int) else (selection.start or 0)
     last = first + 1 if isinstance(selection, int) else (selection.stop or array.shape[0])
+    check_present(store, array, range(first, last), describe)
     touched = list(chunks(array, last, start=first))
-    for chunk in touched:
-        if not chunk_file(store, array, chunk.key).is_file():
-            raise damaged(store, array, chunk, "the chunk file is missing", describe)
     try:
         values = array[selection]
     except (ValueError, RuntimeError) as error:

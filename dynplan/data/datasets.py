@@ -19,7 +19,7 @@ import torch
 import zarr
 from torch.utils.data import Dataset
 
-from dynplan.data.chunks import chunk_file, chunks, damaged, read
+from dynplan.data.chunks import check_present, read
 from dynplan.data.contents import store_checks
 from dynplan.data.history import context_indices, first_target
 from dynplan.data.store import store_world
@@ -74,10 +74,8 @@ class _EpisodeArray(Dataset):
     def _check_present(self, n_episodes: int) -> None:
         """A ChunkError before any training if a chunk of the split's episodes is missing (Zarr would give blank
         frames for it)."""
-        wanted = set(self.episodes.tolist())
-        for chunk in chunks(self.array, n_episodes):
-            if wanted.intersection(chunk.rows) and not chunk_file(self.store, self.array, chunk.key).is_file():
-                raise damaged(self.store, self.array, chunk, "the chunk file is missing")
+        for episode in self.episodes:
+            check_present(self.store, self.array, range(episode, episode + 1))
 
     def episode(self, i: int) -> np.ndarray:
         """All frames (T, …) of the split's i-th episode (read on first use, then kept)."""

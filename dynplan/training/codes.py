@@ -18,7 +18,7 @@ import numpy as np
 import torch
 import zarr
 
-from dynplan.data.chunks import COMPRESSORS, VERIFY, ChunkError, chunk_file, chunks, commit_rows, damaged, staged
+from dynplan.data.chunks import COMPRESSORS, VERIFY, ChunkError, check_present, commit_rows, staged
 from dynplan.data.contents import pixel_check
 from dynplan.data.store import committed_checksums, episodes_digest
 from dynplan.files import sha256_file
@@ -61,7 +61,7 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         done = int(group[array_name].attrs.get("episodes", 0))
         if done > E or group[array_name].attrs.get("source_digest") != episodes_digest(checksums[:done]):
             done = 0
-    _present(store, frames, range(done, E))  # before anything is written: a missing chunk would encode as blank
+    check_present(store, frames, range(done, E))  # before anything is written: a missing chunk would encode as blank
     if done == 0:
         if array_name in group:
             del group[array_name]
@@ -102,10 +102,3 @@ def build_codes(store: str | os.PathLike, checkpoint: str | os.PathLike, name: s
         record(stop)
     record(E)
     return array_name
-
-
-def _present(store: str, frames: zarr.Array, rows: range) -> None:
-    """A ChunkError if a chunk of the episodes `rows` is missing (Zarr would read it as blank frames)."""
-    for chunk in chunks(frames, rows.stop, start=rows.start):
-        if not chunk_file(store, frames, chunk.key).is_file():
-            raise damaged(store, frames, chunk, "the chunk file is missing")
