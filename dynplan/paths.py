@@ -1,10 +1,11 @@
-"""The kinds of path a command or the API takes, each checked before any work: an output file or folder, an input
-log, a log folder, a frames store, a results folder, a weights file, a model folder.
+"""The kinds of path a command or the API takes, each checked before any work: an output file or folder, an input log,
+a log folder, a frames store, a results folder, a weights file, a model folder.
 
 Each check refuses what is not of its kind — an empty string, a link loop, a device node or a folder where a file is
-meant, a file where a folder is, a missing or unreadable input, an output that is an input — with a `PathError`
-naming the parameter, the path and what was wrong, and returns the path resolved. `PathArgument` is the same check
-as an argparse `type`, so every command declares each path option's kind where it declares the option.
+meant, a file where a folder is, a missing or unreadable input, an output that is an input or inside one, or inside
+the installed package — with a `PathError` naming the parameter, the path and what was wrong, and returns the path
+resolved. `PathArgument` is the same check as an argparse `type`, so every command declares each path option's kind
+where it declares the option.
 """
 
 from __future__ import annotations
@@ -133,12 +134,18 @@ def _inside(path: Path, folder: Path) -> bool:
     return folder in path.parents
 
 
+#: The installed package: its modules and committed weights are no command's output.
+PACKAGE = Path(__file__).resolve().parent
+
+
 def _not_an_input(out: Path, shown: str, parameter: str, shape: str, inputs: tuple) -> None:
+    if out == PACKAGE or _inside(out, PACKAGE):
+        raise PathError(f"{parameter} {shown}: is inside the installed package {PACKAGE}; choose a path outside it")
     for source in inputs:
         source = _resolve(source, "input")
         if out == source:
             raise PathError(f"{parameter} {shown}: is an input of this command; choose another path")
-        if shape == "file" and source.is_dir() and _inside(out, source):
+        if source.is_dir() and _inside(out, source):
             raise PathError(f"{parameter} {shown}: is inside {source}, which this command reads; choose another path")
         if shape == "folder" and _inside(source, out):
             raise PathError(f"{parameter} {shown}: holds {source}, which this command reads; choose another path")
@@ -147,10 +154,10 @@ def _not_an_input(out: Path, shown: str, parameter: str, shape: str, inputs: tup
 def check_output(
     path: str | os.PathLike, parameter: str, kind: str = "file", inputs: tuple[str | os.PathLike, ...] = ()
 ) -> Path:
-    """Check, before any work, that `path` can be written as a `kind` ("file" or "folder"): it is not one of
-    `inputs`, not inside an input folder (a file) nor holding an input (a folder); an existing file is a regular
-    one (never a device node, a pipe or a socket), an existing folder a folder; and the folder it goes in is
-    writable. Returns it resolved; otherwise a PathError naming `parameter`, the path and why."""
+    """Check, before any work, that `path` can be written as a `kind` ("file" or "folder"): it is not inside the
+    installed package, not one of `inputs`, not inside an input folder nor holding an input (a folder); an existing
+    file is a regular one (never a device node, a pipe or a socket), an existing folder a folder; and the folder it
+    goes in is writable. Returns it resolved; otherwise a PathError naming `parameter`, the path and why."""
     out, shown = _resolve(path, parameter), os.fspath(path)
     _not_an_input(out, shown, parameter, kind, inputs)
     status = _stat(out, parameter, shown)

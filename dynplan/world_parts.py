@@ -134,7 +134,8 @@ class PipelineStages(Protocol):
 class RunKind:
     """What one world's runs hold: its id (`name-vN`), the schemas of a manifest and a row, the keys that identify
     a row's case, the provenance keys every row has (None where absent), the keys of how its episode went, what a
-    manifest asks of a case's provenance (`expected`) and which rows of a manifest's run count (`counts`)."""
+    manifest asks of a case's provenance (`expected`) and what in a row contradicts its manifest (`conflict`: a
+    phrase naming the field, or None), which makes the row one its run cannot have written: refused, not skipped."""
 
     world: str
     manifest_schema: type[BaseModel]
@@ -143,7 +144,7 @@ class RunKind:
     provenance_keys: tuple[str, ...]
     result_keys: tuple[str, ...]
     expected: Callable[[Mapping, Mapping], dict]
-    counts: Callable[[Mapping, Mapping], bool] = lambda manifest, row: True
+    conflict: Callable[[Mapping, Mapping], str | None] = lambda manifest, row: None
 
     def case_key(self, row: Mapping) -> tuple:
         return tuple(row.get(k) for k in self.case_keys)

@@ -19,7 +19,7 @@ import flows.train
 from dynplan.data.collect import log_path, record_episode, stale_temporaries
 from dynplan.logs import read_episode_log
 from dynplan.models.weights import pretrained_path
-from dynplan.paths import check_output
+from dynplan.paths import PACKAGE, PathError, check_output
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -128,6 +128,21 @@ def test_check_output_accepts_what_it_should(tmp_path):
     assert check_output(tmp_path, "--out", "folder") == tmp_path.resolve()
     (tmp_path / "old.mcap").write_text("")
     assert check_output(tmp_path / "old.mcap", "--out", inputs=(tmp_path / "other.mcap",))  # an output may be replaced
+
+
+def test_outputs_stay_out_of_the_package_and_of_the_inputs(tmp_path, capsys):
+    """Nothing is written beside the committed weights, and no output folder goes inside a folder the command
+    reads (a results page inside the results store, a training run inside its frames store)."""
+    for path, kind in ((PACKAGE / "models" / "x", "folder"), (PACKAGE, "folder"), (PACKAGE / "x.mcap", "file")):
+        with pytest.raises(PathError, match=rf"^--out .*: is inside the installed package {PACKAGE}; choose a path"):
+            check_output(path, "--out", kind)
+    (tmp_path / "store").mkdir()
+    with pytest.raises(PathError, match=r"^--out .*/store/runs: is inside .*/store, which this command reads; "):
+        check_output(tmp_path / "store" / "runs", "--out", "folder", inputs=(tmp_path / "store",))
+    with pytest.raises(SystemExit):
+        _main("train")(["vqvae", "--out", str(PACKAGE / "models" / "runs")])
+    assert f"--out {PACKAGE / 'models' / 'runs'}: is inside the installed package" in capsys.readouterr().err
+    assert not (PACKAGE / "models" / "runs").exists()
 
 
 @pytest.mark.slow

@@ -62,6 +62,8 @@ ROW_DAMAGE = {
     "occupancy of 1.5": (_set("occupancy", 1.5), "field 'occupancy' = 1.5 is out of range (should be less than 1)"),
     "a nested setting": (_set("span", {"lanes": 1}), "field 'span' is not a setting"),
     "an array": (lambda row: "[1, 2]", "not a JSON row (not a JSON object)"),
+    "steps of 10**30": (lambda row: {**row, "steps": 10**30, "decision_ms": [1.0]},
+                        f"the record holds 1 decision times for its {10**30} steps"),
 }  # fmt: skip
 
 
@@ -143,6 +145,34 @@ def test_a_manifest_that_breaks_the_schema_names_the_file_and_the_line(tmp_path,
     assert "\n" not in str(caught.value)
     with pytest.raises(StoreError, match=f"manifest.json:{number}: "):  # every reader of the run refuses it
         run.current()
+
+
+MANIFEST_CONFLICTS = {
+    "a seed the run never listed": (lambda run: edit_row(run, 17, _set("seed", 7)),
+                                    "episodes.jsonl:17: field 'seed' = 7 is not one of the run's episode seeds"),
+    "other playouts": (lambda run: run.manifest_path.write_text(run.manifest_path.read_text().replace(
+                           '"playouts": 100', '"playouts": 200')),
+                       "episodes.jsonl:1: field 'playouts' = 100 is not the run's 200 playouts"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("damage", MANIFEST_CONFLICTS, ids=list(MANIFEST_CONFLICTS))
+def test_a_row_its_manifest_contradicts_is_refused_not_dropped(tmp_path, damage):
+    """A row its run cannot have written (its seed is not the manifest's, its playouts are not the run's) is
+    named with its line and field by every reader of the counted rows, not left out of the tables."""
+    change, message = MANIFEST_CONFLICTS[damage]
+    run = small_run(tmp_path)
+    change(run)
+    with pytest.raises(StoreError) as caught:
+        run.current()
+    assert f"runs/{SMALL}/{message} (" in str(caught.value) and "\n" not in str(caught.value)
+
+
+def test_a_row_of_other_provenance_is_kept_and_named_as_not_counted(tmp_path):
+    run = small_run(tmp_path)
+    edit_row(run, 17, _set("temperature", 0.5))  # a setting its manifest does not ask
+    assert len(run.current()) == len(Run(LAB_RESULTS, SMALL).current()) - 1
+    assert run.stale() == [(17, "temperature 0.5, the manifest asks None")]
 
 
 def test_a_torn_manifest_names_its_line(tmp_path):
@@ -333,6 +363,19 @@ def test_a_manifest_with_string_numbers_is_refused_not_dropped(checkout, capsys)
     line = _refused([], capsys)
     assert f"runs/evaluation/manifest.json:{number}: field 'playouts' = '100' is not an integer" in line
     assert _pages(checkout) == _pages(ROOT)
+
+
+def test_a_loss_names_the_rows_kept_but_not_counted(checkout, capsys):
+    """A row with a field its manifest does not ask (a hand edit, another program's key) stops counting: the
+    refusal names its file, line and field beside the entry the pages would lose."""
+    run = Run(checkout / "datasets" / "results")
+    edit_row(run, 5, _set("note", "checked"))
+    line = _refused([], capsys)
+    assert "would lose 1 of its" in line and _pages(checkout) == _pages(ROOT)
+    assert (
+        "runs/evaluation/episodes.jsonl: 1 row kept but not counted (played with other provenance than the manifest "
+        "asks); the first, line 5: note 'checked', the manifest asks None" in line
+    )
 
 
 def test_lost_entries_name_rows_episodes_and_images():

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def row(seed=EVAL_SEED_START, technique="oracle", k=3, outcome="goal", model=None, **extra):
     base = {"technique": technique, "agent_speed": 1.0, "rollout_steps": k, "seed": seed, "model": model,
-            "outcome": outcome, "steps": 20, "playouts": 100, "log_sha256": f"log{seed}", "decision_ms": [1.0],
+            "outcome": outcome, "steps": 1, "playouts": 100, "log_sha256": f"log{seed}", "decision_ms": [1.0],
             "wall_s": 0.1}  # fmt: skip
     if model:
         base["world_model_sha256"] = "w1"

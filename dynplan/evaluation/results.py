@@ -21,7 +21,7 @@ import re
 from pathlib import Path
 
 from dynplan.cli import CommandParser, InputError, run_command
-from dynplan.evaluation.store import shown
+from dynplan.evaluation.store import shown, stale_report
 from dynplan.evaluation.table import aggregate, load_results, render_compact, render_markdown, table_files
 from dynplan.files import write_bytes_atomic
 from dynplan.paths import PathArgument, PathKind, check_input, check_output
@@ -263,9 +263,11 @@ def _check_loss(pages: dict[Path, str], results: Path) -> None:
                 f"({'; '.join(lost[:2])}{more})"
             )
     if found:
+        stale = "".join(f" | {line}" for line in stale_report(results))  # rows kept but not counted: the likely cause
         raise ResultsError(
             f"the results store {shown(results)} shows less than the pages: "
             + " | ".join(found)
+            + stale
             + "; check --results-dir, or pass --allow-loss to write them anyway"
         )
 
@@ -336,6 +338,8 @@ def main(argv: list[str] | None = None) -> Path:
     except InputError as error:  # StoreError, ResultsError, a table that mixes provenance: all before writing
         parser.error(str(error))
     print("wrote " + ", ".join(map(shown, written)))
+    for line in stale_report(args.results_dir):
+        print(line)
     return written[2]
 
 

@@ -100,12 +100,6 @@ def provenance_of(row: Mapping) -> dict:
     return ROAD_RUNS.provenance_of(row)
 
 
-def same_provenance(row: Mapping, expected: Mapping, kind: RunKind | None = None) -> bool:
-    """Whether `row` was played with the provenance `expected` (what its manifest asks), key for key."""
-    recorded = (kind or ROAD_RUNS).provenance_of(row)
-    return all(recorded.get(k) == expected.get(k) for k in recorded.keys() | expected.keys())
-
-
 def check_run_name(name: str) -> str:
     if not isinstance(name, str) or not _RUN_NAME.fullmatch(name):
         raise StoreError(
@@ -274,6 +268,10 @@ class Run:
         An unfinished last line is left out, and reported (TornRowWarning) unless a writer is at work on it; a
         damaged or invalid line, or a second row of a case and provenance that differs from the first, is a
         StoreError naming the file and line(s)."""
+        return [row for _, row in self._numbered_rows()]
+
+    def _numbered_rows(self) -> list[tuple[int, dict]]:
+        """`rows`, each with its line number."""
         try:
             data = self.episodes_path.read_bytes()
         except FileNotFoundError:
@@ -283,7 +281,7 @@ class Run:
         if data and not data.endswith(b"\n") and is_held(self._lock_path):
             data = data[: data.rfind(b"\n") + 1]  # another writer's row, still being written
         kind = self.kind
-        return [row for _, row in _merge({}, _parse(data, self.episodes_path, kind), self.episodes_path, kind)]
+        return _merge({}, _parse(data, self.episodes_path, kind), self.episodes_path, kind)
 
     def append(self, row: Mapping) -> bool:
         """Append one episode's row, unless the run already holds that case with the same provenance (then return
@@ -323,14 +321,49 @@ class Run:
         return self.kind.expected(manifest, row)
 
     def current(self, manifest: Mapping | None = None) -> list[dict]:
-        """The rows that count: for each case, the last row whose provenance equals the manifest's."""
-        manifest = self.manifest() if manifest is None else manifest
-        kind = self.kind
-        out: dict[tuple, dict] = {}
-        for row in self.rows():
-            if kind.counts(manifest, row) and same_provenance(row, kind.expected(manifest, row), kind):
-                out[kind.case_key(row)] = row
-        return list(out.values())
+        """The rows that count: for each case, the last row whose provenance equals the manifest's. A row the
+        manifest contradicts (`RunKind.conflict`: a seed it does not list, other playouts) is a StoreError naming
+        the file, the line and the field: such a row was not written by this run and would vanish silently."""
+        return [row for _, row, reason in self._counted(manifest) if reason is None]
+
+    def stale(self, manifest: Mapping | None = None) -> list[tuple[int, str]]:
+        """The rows kept but not counted, each as its line and why (the first provenance field that differs from
+        what the manifest asks: weights since replaced, a log recorded again, a setting no longer on)."""
+        return [(number, reason) for number, _, reason in self._counted(manifest) if reason is not None]
+
+    def _counted(self, manifest: Mapping | None) -> list[tuple[int, dict, str | None]]:
+        """Each row with its line and None where its provenance is the manifest's, else how it differs; for each
+        case only the last row that counts is kept."""
+        given, manifest = manifest, self.manifest() if manifest is None else manifest
+        kind, out, counted = self.kind, [], {}
+        for number, row in self._numbered_rows():
+            problem = kind.conflict(manifest, row)
+            if problem is not None and given is not None:  # a manifest read earlier: another writer may have added
+                manifest = self.manifest()
+                problem = kind.conflict(manifest, row)
+            if problem is not None:
+                raise StoreError(
+                    f"{shown(self.episodes_path)}:{number}: {problem} ({shown(self.manifest_path)}); restore the "
+                    "manifest or move the row to its own run"
+                )
+            reason = _difference(kind.provenance_of(row), kind.expected(manifest, row))
+            if reason is None:
+                counted[kind.case_key(row)] = len(out)
+            out.append((number, row, reason))
+        return [entry for i, entry in enumerate(out) if entry[2] is not None or counted[kind.case_key(entry[1])] == i]
+
+
+def _difference(recorded: Mapping, expected: Mapping) -> str | None:
+    """None where a row's provenance is what its manifest asks; else the first field that differs, in words."""
+    for key in sorted(recorded.keys() | expected.keys()):
+        if recorded.get(key) != expected.get(key):
+            return f"{key} {_short(recorded.get(key))}, the manifest asks {_short(expected.get(key))}"
+    return None
+
+
+def _short(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 24 else text[:23] + "…"
 
 
 def expected_provenance(manifest: Mapping, case: Mapping) -> dict:
@@ -354,8 +387,14 @@ def expected_weights(manifest: Mapping, case: Mapping) -> dict:
     return {"world_model_sha256": manifest["world_models"].get(model, {}).get("weights_sha256") if model else None}
 
 
-def _in_the_manifests_seeds(manifest: Mapping, row: Mapping) -> bool:
-    return row.get("seed") in manifest["episode_seeds"]
+def _road_conflict(manifest: Mapping, row: Mapping) -> str | None:
+    """What in a road row its manifest contradicts: a seed the run never listed, or other playouts (a run's playouts
+    never change)."""
+    if row.get("seed") not in manifest["episode_seeds"]:
+        return f"field 'seed' = {row.get('seed')!r} is not one of the run's episode seeds"
+    if row.get("playouts") != manifest["playouts"]:
+        return f"field 'playouts' = {row.get('playouts')!r} is not the run's {manifest['playouts']} playouts"
+    return None
 
 
 #: The road's runs: Table 1's cases (technique, world model, speed, k, seed) with their playouts, logs and weights.
@@ -367,7 +406,7 @@ ROAD_RUNS = RunKind(
     PROVENANCE_KEYS,
     RESULT_KEYS,
     expected_provenance,
-    _in_the_manifests_seeds,
+    _road_conflict,
 )
 
 
@@ -464,6 +503,7 @@ def _merge(
 def runs(root: str | os.PathLike, role: str | None = None) -> list[Run]:
     """The runs of a store (with role `role`, if given), by name. A run folder whose episodes have no manifest
     beside them is a StoreError: its rows would vanish from every table without a word."""
+    _check_readable(Path(root) / "runs")
     for orphan in sorted(Path(root).glob("runs/*/episodes.jsonl")):
         if not (orphan.parent / "manifest.json").is_file():
             raise StoreError(
@@ -479,12 +519,38 @@ def runs(root: str | os.PathLike, role: str | None = None) -> list[Run]:
     return [r for r in found if role is None or r.manifest()["role"] == role]
 
 
+def _check_readable(folder: Path) -> None:
+    """A StoreError naming the first run folder (or `folder` itself) that cannot be listed or read: its rows would
+    otherwise be left out of every table without a word."""
+    if not folder.is_dir():
+        return
+    for path in (folder, *sorted(p for p in folder.iterdir() if p.is_dir())):
+        if not os.access(path, os.R_OK | os.X_OK):
+            raise StoreError(f"{shown(path)}: cannot be read (permission denied); its runs would be left out")
+
+
 def check_store(root: str | os.PathLike) -> None:
     """Read every run of the store at `root` through its schema (a StoreError naming the file and line otherwise):
     what a command that reads or extends the store can call before any work starts."""
     for run in runs(root):
         run.manifest()
         run.rows()
+
+
+def stale_report(root: str | os.PathLike) -> list[str]:
+    """A line for each run of the store at `root`, and of each world's store under it (`<root>/<world>`), that
+    keeps rows it does not count: how many, and the first one's line and how its provenance differs."""
+    lines = []
+    for store in (Path(root), *sorted(p.parent for p in Path(root).glob("*/runs"))):
+        for run in runs(store):
+            stale = run.stale()
+            if stale:
+                (number, reason), n = stale[0], len(stale)
+                lines.append(
+                    f"{shown(run.episodes_path)}: {n} row{'s' if n > 1 else ''} kept but not counted (played with "
+                    f"other provenance than the manifest asks); the first, line {number}: {reason}"
+                )
+    return lines
 
 
 def evaluation_rows(root: str | os.PathLike) -> list[dict]:

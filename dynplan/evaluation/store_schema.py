@@ -17,7 +17,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 FORMAT = "dynplan-run/1"
 #: evaluation: counts in Table 1; validation: the validation episodes, where settings are chosen; candidate: the
@@ -116,6 +116,13 @@ class RowSchema(StrictSchema):
     wall_s: Seconds
     code_version: Text = None
 
+    @model_validator(mode="after")
+    def _one_decision_a_step(self) -> RowSchema:
+        """A step is one decision: an episode of `steps` steps timed each one (so a step count of 10**30 is no row)."""
+        if len(self.decision_ms) != self.steps:
+            raise ValueError(f"holds {len(self.decision_ms)} decision times for its {self.steps} steps")
+        return self
+
 
 class RecordedCaution(StrictSchema):
     """A world model's caution in a manifest: the settings that are on, and any of other code's (scalars)."""
@@ -194,6 +201,8 @@ def _phrase(error: dict) -> str:
         reason = _REASONS[kind]
     elif kind == "value_error":  # the schema's own checks say what they found
         reason = str(ctx.get("error", error["msg"]))
+        if not field:  # a check of the whole record: "holds 1 decision times for its 20 steps"
+            return f"the record {reason}"
         if isinstance(error["input"], dict | list):
             return f"field {field!r} {reason}"
     else:  # a range: "should be greater than or equal to 1"
