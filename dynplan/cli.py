@@ -15,6 +15,7 @@ import os
 import re
 import signal
 import sys
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NoReturn, get_args
@@ -182,13 +183,54 @@ def die_with_parent() -> None:
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+#: Seconds an interrupted command has to stop by itself (its tasks' shutdown, Prefect's last reports) before it is
+#: ended: every writer survives a kill (atomic files, locked appends, stores rolled back), so nothing is lost.
+STOP_WITHIN_S = 20.0
+
+
+class _Interrupt:
+    """The SIGINT handler while a command runs: the first interrupt raises KeyboardInterrupt (a clean stop) and
+    starts a clock that ends the process after `STOP_WITHIN_S` however busy its threads keep it; a second ends it
+    at once."""
+
+    def __init__(self, prog: str) -> None:
+        self.prog, self.interrupted = prog, False
+
+    def __call__(self, signum: int, frame: object) -> None:
+        if self.interrupted:
+            self.stop()
+        self.interrupted = True
+        timer = threading.Timer(STOP_WITHIN_S, self.stop)
+        timer.daemon = True
+        timer.start()
+        raise KeyboardInterrupt
+
+    def stop(self) -> None:
+        if not _Interrupt.said:
+            print(f"{self.prog}: interrupted; run it again to resume", file=sys.stderr, flush=True)
+        os._exit(130)
+
+    #: Whether the command has said "interrupted" already (it stopped by itself, and its process is ending).
+    said = False
+
+
 def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[str] | None = None) -> Any:
     """Run a command's `main`: an `InputError` (bad input met before or during the work) is one line and exit status
     2, any other error one line and exit status 1 (the traceback with `--debug`), an interrupt "interrupted" and
-    130."""
+    130 (within `STOP_WITHIN_S`, or at once on a second interrupt)."""
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
-    if signal.getsignal(signal.SIGINT) is _interrupted_while_loading:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    main_thread = threading.current_thread() is threading.main_thread()
+    before = signal.getsignal(signal.SIGINT) if main_thread else None
+    if before in (_interrupted_while_loading, signal.default_int_handler):
+        signal.signal(signal.SIGINT, _Interrupt(prog))
+    try:
+        return _run_main(main, prog, argv, debug)
+    finally:
+        if before in (_interrupted_while_loading, signal.default_int_handler):
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _run_main(main: Callable[[list[str] | None], Any], prog: str, argv: list[str] | None, debug: bool) -> Any:
     try:
         try:
             result = main(argv)
@@ -198,7 +240,8 @@ def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[s
         sys.stdout.flush()  # a full device or a closed pipe is this command's to name, not the interpreter's at exit
         return result
     except KeyboardInterrupt:
-        print(f"{prog}: interrupted; run it again to resume", file=sys.stderr)
+        print(f"{prog}: interrupted; run it again to resume", file=sys.stderr, flush=True)
+        _Interrupt.said = True
         raise SystemExit(130) from None
     except Exception as error:
         if debug:

@@ -97,6 +97,8 @@ def checked_window_options(
     except ImportError:
         parser.exit(2, f"python -m flows.play: error: {INSTALL}\n")
     script = None if args.script is None else [key.strip() for key in args.script.split(",") if key.strip()]
+    if script is not None and len(script) > MAX_SCRIPT:
+        parser.error(f"--script: {len(script)} keys; at most {MAX_SCRIPT} (one a frame: longer than any game)")
     _check_display(parser, script)
     for key in script or ():
         try:
@@ -108,6 +110,9 @@ def checked_window_options(
     return script
 
 
+#: The most keys a `--script` holds: one a frame, more than any world's episode lasts (the road's 407 frames,
+#: Freeway's 2,048 steps).
+MAX_SCRIPT = 10_000
 NO_DISPLAY = (
     "no display to open the window on (DISPLAY and WAYLAND_DISPLAY are unset): run it on a desktop, or headless "
     "with --script KEYS (e.g. --script p,space,escape) and --screenshot or --record to keep what it played"

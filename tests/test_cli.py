@@ -130,3 +130,37 @@ def test_play_without_a_display_says_so_in_one_line_before_loading_a_world():
     proc = probe("flows.play", env={k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")})
     assert proc.stdout.splitlines() == ["status 2", "[]"], proc.stdout + proc.stderr
     assert proc.stderr.strip().count("\n") == 0 and "no display" in proc.stderr, proc.stderr
+
+
+#: A command that will not stop when interrupted: it swallows the interrupt (as a busy library may) or leaves a
+#: thread running that the interpreter waits for at exit.
+_STUBBORN = """
+import sys, threading, time
+import dynplan.cli as cli
+cli.STOP_WITHIN_S = 1.0
+def swallows(argv):
+    print("ready", file=sys.stderr, flush=True)
+    while True:
+        try:
+            time.sleep(60)
+        except KeyboardInterrupt:
+            pass
+def lingers(argv):
+    threading.Thread(target=time.sleep, args=(600,)).start()
+    print("ready", file=sys.stderr, flush=True)
+    time.sleep(600)
+cli.run_command({"swallows": swallows, "lingers": lingers}[sys.argv[1]], "python -m stubborn")
+"""
+
+
+@pytest.mark.parametrize("how", ["swallows", "lingers"])
+def test_an_interrupted_command_ends_within_its_grace_however_busy(how):
+    """Ctrl-C ends every command: a clean stop first, and after `STOP_WITHIN_S` (1 s here) the process ends with
+    status 130 and one "interrupted" line, whatever its threads or libraries do with the interrupt."""
+    proc = subprocess.Popen([sys.executable, "-c", _STUBBORN, how], cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    assert proc.stderr.readline().strip() == "ready"
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=60)[1]
+    assert proc.returncode == 130 and err.strip().splitlines() == [
+        "python -m stubborn: interrupted; run it again to resume"
+    ]

@@ -354,7 +354,7 @@ def test_evaluate_command_line_names_a_bad_worker_count(capsys):
             "occupancy=0.1 needs a tokenizer with patch-local codes (local=True); 'paper' has none",
         ),
         (["--first-seed", "2000000"], "--first-seed=2000000 needs its own --run"),
-        (["--run", "../x"], "--run: run name '../x' is invalid"),
+        (["--run", "../x"], "--run '../x' is not a run name"),
         (["--first-seed", "-1"], "seed"),
         (["--table1", "--techniques", "mid", "--agent-speeds", "0.5"], "drop --techniques --agent-speeds"),
         (["--device", "tpu"], "device='tpu' is invalid (value error, device must be a torch device"),

@@ -80,6 +80,7 @@ class Command:
     input: str | None = None  # for outputs that must not be it, or be in it
     extra: dict = field(default_factory=dict)  # known-bad values of its plain-string options
     exempt: tuple[str, ...] = ()  # options with no bad value to draw (and why, in the table below)
+    world: str | None = None  # another world's command (`--world W`, first in `base`): its parser is that world's
 
 
 _DEVICE = ["gpu", "cuda:x", "", "tpu", "cuda:99", "cpu:0:0"]
@@ -101,13 +102,29 @@ COMMANDS = {
                         {"--device": _DEVICE, "--dask-address": _DASK,
                          "--run": ["", "../up", "a/b", ".hidden", "x" * 101, "sp ace"]}),
     "play": Command(flows.play.main, "python -m flows.play", ("--no-imagination",), None,
-                    {"--script": ["nosuchkey", "up,nosuch", "ctrl+alt"]}),
+                    {"--script": ["nosuchkey", "up,nosuch", "ctrl+alt", ",".join(["up"] * 40_000)]}),
     "collect_train_eval": Command(flows.collect_train_eval.main, "python -m flows.collect_train_eval",
                                   ("--out", "{out}/cte"), None, {"--dask-address": _DASK}),
     "serve": Command(flows.serve.main, "python -m flows.serve", ("--out", "{out}/srv"), None,
                      {"--dask-address": _DASK}),
     "view": Command(flows.view.main, "python -m flows.view", ("{log}",), "{log}"),
     "bench_pipeline": Command(flows.bench_pipeline.main, "python -m flows.bench_pipeline", ("--out", "{out}/b.json")),
+    "collect_minigrid": Command(flows.collect.main, "python -m flows.collect",
+                                ("--world", "minigrid", "--out", "{out}/mlogs", "--episodes", "1"), None,
+                                {"--dask-address": _DASK}, world="minigrid"),
+    "evaluate_minigrid": Command(flows.evaluate.main, "python -m flows.evaluate",
+                                 ("--world", "minigrid", "--techniques", "stand_still", "--episodes", "1",
+                                  "--results-dir", "{out}/mres", "--run", "probe"), None,
+                                 {"--dask-address": _DASK, "--run": ["", "../up", "a/b", "x" * 101]}, world="minigrid"),
+    "evaluate_freeway": Command(flows.evaluate.main, "python -m flows.evaluate",
+                                ("--world", "freeway", "--techniques", "zero", "--modes", "0", "--episodes", "1",
+                                 "--results-dir", "{out}/fres", "--run", "probe"), None,
+                                {"--dask-address": _DASK, "--run": ["", "../up", "a/b", "x" * 101]}, world="freeway"),
+    "replay_minigrid": Command(flows.replay.main, "python -m flows.replay",
+                               ("--world", "minigrid", "{mlog}", "--out", "{out}/m.mcap"), "{mlog}", world="minigrid"),
+    "replay_freeway": Command(flows.replay.main, "python -m flows.replay",
+                              ("--world", "freeway", "{flog}", "--technique", "zero", "--out", "{out}/f.mcap"),
+                              "{flog}", world="freeway"),
     "results": Command(dynplan.evaluation.results.main, "python -m dynplan.evaluation.results",
                        ("--results-dir", "{results}", "--readme", "{readme}", "--docs", "{docs}"), "{results}",
                        {"--readme": ["{folder}", "{devnode}", "{missing}.md", "{loop}", "{fifo}", "{file}"]}),
@@ -133,7 +150,9 @@ class Scene:
                  "folder": "hostile/a_folder", "under_file": "hostile/a_file", "missing": "hostile/missing",
                  "dangling": "hostile/dangling", "logs": "inputs/logs", "log": "inputs/logs/episode_0000000003.mcap",
                  "store": "inputs/store.zarr", "results": "inputs/results", "readme": "pages/README.md",
-                 "docs": "pages", "models": "inputs/models", "out": "out"}  # fmt: skip
+                 "docs": "pages", "models": "inputs/models", "out": "out",
+                 "mlog": "inputs/mlogs/episode_0000000001.mcap",
+                 "flog": "inputs/flogs/episode_0000000000.mcap"}  # fmt: skip
         values = {k: str(self.root / v) for k, v in names.items()}
         input_path = Path(values[command.input.strip("{}")]) if command.input else self.root / "no-input"
         values |= {"input": str(input_path), "input_dir": str(input_path), "input_root": str(self.root)}
@@ -168,6 +187,8 @@ def scene(tmp_path_factory) -> Scene:
     inputs = root / "inputs"
     for seed in (3, 4):
         record_episode(inputs / "logs", seed)
+    record_episode(inputs / "mlogs", 1, world_name="minigrid")
+    record_episode(inputs / "flogs", 0, world_name="freeway")
     build_frame_store(inputs / "store.zarr", [inspect_for_store(p) for p in sorted((inputs / "logs").glob("*.mcap"))])
     for name in ("vqvae", "pixelcnn"):  # as a pipeline writes them: saved with their weights' digest
         state = torch.load(pretrained_path(name, "default"), map_location="cpu", weights_only=False)
@@ -240,7 +261,7 @@ def _parser(command: Command) -> CommandParser:
 
     display = mock.patch.dict(os.environ, {"SDL_VIDEODRIVER": "dummy"})  # flows.play asks for a display first
     with mock.patch.object(argparse.ArgumentParser, "parse_args", capture), display, pytest.raises(Accepted):
-        command.main([])
+        command.main(["--world", command.world] if command.world else [])
     return found[0]
 
 

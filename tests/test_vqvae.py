@@ -595,3 +595,21 @@ def test_encode_and_decode_take_numpy_and_return_what_they_are_given():
             call()
     with pytest.raises(TypeError, match="VQVAE.encode: frames must be a numpy array or a torch tensor"):
         tokenizer.encode(frames.tolist())
+
+
+def test_fewer_epochs_than_a_run_has_trained_are_refused_naming_the_run(tmp_path, store, capsys):
+    """A run keeps only its last epoch's weights: asking `flows.train` for fewer epochs than it has would return
+    weights of more epochs than asked, so the command refuses, naming the run and what it holds."""
+    import flows.train
+    from dynplan.training.runs import vqvae_run_dir
+
+    run_dir = vqvae_run_dir(
+        str(store), str(tmp_path), PRESETS["default"].model_dump(), TrainBudget(epochs=2).model_dump()
+    )
+    run_dir.mkdir(parents=True)
+    torch.save({"kind": "vqvae", "epoch": 3}, run_dir / "vqvae.pt")
+    with pytest.raises(SystemExit) as caught:
+        flows.train.main(["vqvae", "--store", str(store), "--out", str(tmp_path), "--epochs", "2"])
+    error = capsys.readouterr().err.strip().splitlines()[-1]
+    assert caught.value.code == 2 and f"--epochs 2: the run {run_dir} has trained 3 epochs" in error
+    assert "ask --epochs 3 or more, or train a 2-epoch run under another --out" in error

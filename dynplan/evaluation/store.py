@@ -26,6 +26,7 @@ another world's `datasets/results/<world>`).
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import re
@@ -54,6 +55,7 @@ PROVENANCE_KEYS = ("playouts", "log_sha256", "world_model_sha256", *Caution.mode
 #: What a row records of how its episode went; every other key of a row is its case or its provenance.
 RESULT_KEYS = ("outcome", "steps", "decision_ms", "wall_s", "code_version")
 _RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,99}")
+_RUN_RULE = "letters, digits, '_', '.', '-' (up to 100, not starting with a punctuation mark)"
 
 
 class StoreError(InputError):
@@ -102,11 +104,16 @@ def provenance_of(row: Mapping) -> dict:
 
 def check_run_name(name: str) -> str:
     if not isinstance(name, str) or not _RUN_NAME.fullmatch(name):
-        raise StoreError(
-            f"run name {name!r} is invalid: letters, digits, '_', '.', '-' (up to 100, not starting "
-            f"with a punctuation mark)"
-        )
+        raise StoreError(f"run name {name!r} is invalid: {_RUN_RULE}")
     return name
+
+
+def run_argument(value: str) -> str:
+    """An argparse `type` for a `--run` option: a valid run name (`check_run_name`), refused naming the option."""
+    try:
+        return check_run_name(value)
+    except StoreError:
+        raise argparse.ArgumentTypeError(f"{value!r} is not a run name: {_RUN_RULE}") from None
 
 
 class Run:
@@ -530,11 +537,10 @@ def _check_readable(folder: Path) -> None:
 
 
 def check_store(root: str | os.PathLike) -> None:
-    """Read every run of the store at `root` through its schema (a StoreError naming the file and line otherwise):
-    what a command that reads or extends the store can call before any work starts."""
+    """Read every run of the store at `root` through its schema and its manifest (a StoreError naming the file and
+    line otherwise): what a command that reads or extends the store can call before any work starts."""
     for run in runs(root):
-        run.manifest()
-        run.rows()
+        run.current()  # the manifest, every row, and each row against the manifest
 
 
 def stale_report(root: str | os.PathLike) -> list[str]:

@@ -14,7 +14,7 @@ from pydantic import Field
 
 from dynplan.cli import bounded
 from dynplan.config import Config, field_help
-from dynplan.evaluation.store import Run, check_run_name
+from dynplan.evaluation.store import Run, run_argument
 from dynplan.paths import PathArgument, PathKind, check_output
 from dynplan.progress import progress
 from dynplan.worlds.freeway.evaluation import (
@@ -132,11 +132,12 @@ class Evaluate:
             default=RESULTS_DIR,
             help=f"where runs are written (default {RESULTS_DIR})",
         )
-        parser.add_argument("--run", default="evaluation", help="the run to play into (default 'evaluation')")
+        parser.add_argument(
+            "--run", type=run_argument, default="evaluation", help="the run to play into (default 'evaluation')"
+        )
         parser.add_argument("--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), help=MODEL_DIR_HELP)
 
     def request(self, args: argparse.Namespace) -> FreewayEvaluation:
-        check_run_name(args.run)
         check_output(args.results_dir, "--results-dir", "folder")
         if "learned" in args.techniques:
             world_model_for("learned", args.model_dir)  # its checkpoints checked now, not in the first task

@@ -16,7 +16,7 @@ from dynplan.cli import Bounded
 from dynplan.config import Config
 from dynplan.evaluation.agent import AgentSpec
 from dynplan.evaluation.provenance import world_model_entry
-from dynplan.evaluation.store import Run, check_run_name
+from dynplan.evaluation.store import Run, run_argument
 from dynplan.logs.reader import EpisodeLog
 from dynplan.logs.recording import read_world_recording
 from dynplan.paths import PathArgument, PathKind, check_output
@@ -105,12 +105,13 @@ class Evaluate:
         parser.add_argument("--batch", type=Bounded(int, 1, 10_000), default=default.batch, help="rooms a job")
         out = f"where runs are written (default {RESULTS_DIR})"
         parser.add_argument("--results-dir", type=PathArgument(PathKind.OUTPUT_FOLDER), default=RESULTS_DIR, help=out)
-        parser.add_argument("--run", default="evaluation", help="the run to play into (default 'evaluation')")
+        parser.add_argument(
+            "--run", type=run_argument, default="evaluation", help="the run to play into (default 'evaluation')"
+        )
         models = "folder holding minigrid/{vqvae,pixelcnn}.pt for the learned techniques (default: the committed)"
         parser.add_argument("--model-dir", type=PathArgument(PathKind.MODEL_FOLDER), default=None, help=models)
 
     def request(self, args: argparse.Namespace) -> MiniGridEvaluation:
-        check_run_name(args.run)
         check_output(args.results_dir, "--results-dir", "folder")
         request = MiniGridEvaluation(
             techniques=args.techniques,

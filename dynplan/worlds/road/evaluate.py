@@ -29,7 +29,7 @@ from dynplan.evaluation.cases import (
     CasePlan,
     road_models,
 )
-from dynplan.evaluation.store import EVALUATION_RUN, Run, StoreError, check_run_name, check_store
+from dynplan.evaluation.store import EVALUATION_RUN, Run, check_store, run_argument
 from dynplan.evaluation.table import aggregate, load_results, render_markdown, write_table
 from dynplan.evaluation.techniques import TECHNIQUES
 from dynplan.files import sha256_file
@@ -116,10 +116,6 @@ class Evaluate:
         loaded once, before any flow machinery starts."""
         from dynplan.models.checkpoint import CheckpointError  # torch: imported by the work, not by `--help`
 
-        try:
-            check_run_name(args.run)
-        except StoreError as error:
-            raise StoreError(f"--run: {error}") from None
         if args.first_seed != EVAL_SEED_START and args.run == EVALUATION_RUN:
             raise ValueError(
                 f"--first-seed={args.first_seed} needs its own --run: the run {EVALUATION_RUN!r} holds the "
@@ -292,6 +288,7 @@ def _add_store_options(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--run",
+        type=run_argument,
         default=EVALUATION_RUN,
         help=f"the run to play into (default {EVALUATION_RUN!r}, Table 1's; name another for validation or a "
         "candidate)",
