@@ -10,7 +10,7 @@ The few entry points a user starts from:
 Importing dynplan registers the Gymnasium environment `dynplan/Road-v0`.
 """
 
-from dynplan.cli import interrupt_while_loading
+from dynplan.interrupts import interrupt_while_loading
 
 interrupt_while_loading()  # before any heavy import
 

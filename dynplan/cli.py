@@ -20,6 +20,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, NoReturn, get_args
 
+from dynplan.interrupts import interrupted_while_loading
+
 if TYPE_CHECKING:
     from pydantic import BaseModel
 
@@ -150,27 +152,6 @@ def _one_line(error: BaseException) -> str:
     return text if isinstance(error, InputError) else f"{type(error).__name__}: {text}"
 
 
-def _program() -> str:
-    """How the running command was started, e.g. "python -m flows.collect"."""
-    argv = getattr(sys, "orig_argv", sys.argv)
-    return f"python -m {argv[argv.index('-m') + 1]}" if "-m" in argv[:-1] else os.path.basename(sys.argv[0])
-
-
-def _interrupted_while_loading(signum: int, frame: object) -> None:
-    print(f"{_program()}: interrupted", file=sys.stderr, flush=True)
-    os._exit(130)  # nothing is written while a command loads its modules
-
-
-def interrupt_while_loading() -> None:
-    """Under `python -m`, an interrupt while the command's modules load is "interrupted" and exit status 130, not a
-    traceback of the import machinery. `run_command` restores Python's own handler when the command starts."""
-    argv = getattr(sys, "orig_argv", [])
-    target = argv[argv.index("-m") + 1] if "-m" in argv[:-1] else ""
-    ours = target.split(".")[0] in ("dynplan", "flows")
-    if sys.argv[:1] == ["-m"] and ours and signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-        signal.signal(signal.SIGINT, _interrupted_while_loading)
-
-
 def add_debug_option(parser: argparse.ArgumentParser) -> None:
     """The `--debug` option (read by `run_command`): print the traceback of an unexpected error."""
     parser.add_argument("--debug", action="store_true", help="print the whole traceback of an unexpected error")
@@ -221,12 +202,12 @@ def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[s
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
     main_thread = threading.current_thread() is threading.main_thread()
     before = signal.getsignal(signal.SIGINT) if main_thread else None
-    if before in (_interrupted_while_loading, signal.default_int_handler):
+    if before in (interrupted_while_loading, signal.default_int_handler):
         signal.signal(signal.SIGINT, _Interrupt(prog))
     try:
         return _run_main(main, prog, argv, debug)
     finally:
-        if before in (_interrupted_while_loading, signal.default_int_handler):
+        if before in (interrupted_while_loading, signal.default_int_handler):
             signal.signal(signal.SIGINT, signal.default_int_handler)
 
 

@@ -69,7 +69,9 @@ def describe(cls: type[BaseModel], error: ValidationError) -> str:
             problems.append(str(err["msg"]).removeprefix("Value error, "))
         else:
             field = cls.model_fields.get(str(loc[0]))
-            what = f"{'.'.join(map(str, loc))}={err.get('input')!r} is invalid ({err['msg'].lower()})"
+            what = (
+                f"{'.'.join(map(str, loc))}={err.get('input')!r} is invalid ({err['msg'][:1].lower() + err['msg'][1:]})"
+            )
             if field is not None:
                 rng = valid_range(field)
                 what += f"; valid range {rng}" if rng else ""

@@ -145,7 +145,7 @@ def _not_an_input(out: Path, shown: str, parameter: str, shape: str, inputs: tup
         source = _resolve(source, "input")
         if out == source:
             raise PathError(f"{parameter} {shown}: is an input of this command; choose another path")
-        if source.is_dir() and _inside(out, source):
+        if not source.is_file() and _inside(out, source):  # a folder, or one still to be made
             raise PathError(f"{parameter} {shown}: is inside {source}, which this command reads; choose another path")
         if shape == "folder" and _inside(source, out):
             raise PathError(f"{parameter} {shown}: holds {source}, which this command reads; choose another path")

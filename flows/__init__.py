@@ -7,7 +7,7 @@ ephemeral API to start (Prefect's 20 s is too short on a busy host with few core
 
 import os
 
-from dynplan.cli import interrupt_while_loading
+from dynplan.interrupts import interrupt_while_loading
 
 interrupt_while_loading()
 

@@ -149,6 +149,7 @@ def main(argv: list[str] | None = None) -> dict:
             problem = store_problem(args.verify)
             if problem and "format version" not in problem:
                 raise ValueError(f"--verify {problem}")
+            _check_world(args.world, args.verify)
             return verify(args.verify, args.log_dir, args.json)
         if args.log_dir is None:
             raise ValueError("give LOG_DIR, the folder of episode logs (or --verify STORE)")
@@ -156,6 +157,7 @@ def main(argv: list[str] | None = None) -> dict:
         problem = store_problem(args.out)
         if problem:
             raise ValueError(f"--out {problem}")
+        _check_world(args.world, args.out)
     except (FileNotFoundError, ValueError) as error:
         parser.error(str(error))
     not_logs = sorted(p.name for p in Path(args.log_dir).glob("*.mcap") if not p.is_file())
@@ -177,6 +179,12 @@ def main(argv: list[str] | None = None) -> dict:
         )
         raise SystemExit(1)
     return report
+
+
+def _check_world(name: str | None, store: str) -> None:
+    """`--world` must be the world of the store it names, where that store exists."""
+    if name is not None and Path(store, "zarr.json").is_file() and _store_world(store) != name:
+        raise ValueError(f"--world {name}: {store} holds the {_store_world(store)} world's episodes")
 
 
 def _store_world(store: str) -> str:

@@ -59,9 +59,10 @@ def _restore(saved: int, held, said: list[str]) -> None:
     said.append(held.read().decode(errors="replace"))
 
 
-def load_prefect() -> None:
+def load_prefect() -> str:
     """Import Prefect with its settings from the environment checked: an `EnvironmentProblem` naming each
-    `PREFECT_*` variable whose value Prefect refuses; what else Prefect said on import is shown as it was."""
+    `PREFECT_*` variable whose value Prefect refuses; else what Prefect said on import, for the caller to show
+    once the rest of the environment is checked (a home it could not create is then named, not warned about)."""
     from pydantic import ValidationError
 
     problems: list[str] = []
@@ -76,7 +77,7 @@ def load_prefect() -> None:
             problems = problems or [" ".join(str(error).split())]  # no value to name a variable by: Prefect's words
     if problems:
         raise EnvironmentProblem("; ".join(problems))
-    sys.stderr.write(said[0])
+    return said[0]
 
 
 def _named(value: str, why: str) -> str:
@@ -132,7 +133,7 @@ def check_home() -> None:
 def checked_environment() -> str | None:
     """Prefect loaded, its settings checked, then the API it is told to use (`PREFECT_API_URL`: returned), else the
     home its temporary server keeps its database in (None returned)."""
-    load_prefect()
+    said = load_prefect()
     from prefect.settings import PREFECT_API_URL
 
     url = PREFECT_API_URL.value()
@@ -140,4 +141,5 @@ def checked_environment() -> str | None:
         check_api(url)
     else:
         check_home()
+    sys.stderr.write(said)
     return url or None

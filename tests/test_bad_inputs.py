@@ -120,7 +120,7 @@ def test_cuda_on_a_build_without_it_is_named(capsys):
         pytest.skip("a CUDA device is present")
     with pytest.raises(SystemExit):
         _main("train")(["vqvae", "--device", "cuda"])
-    assert "device 'cuda': this torch build sees no cuda device" in capsys.readouterr().err
+    assert "device 'cuda': this torch build sees no CUDA device" in capsys.readouterr().err
 
 
 def test_check_output_accepts_what_it_should(tmp_path):

@@ -61,10 +61,11 @@ class _EpisodeArray(Dataset):
         self.store, self.array = str(store), group[array]
         n_episodes = int(group.attrs.get("episodes", 0))  # committed episodes (arrays may run longer)
         n_episodes = min(n_episodes, int(self.array.attrs.get("episodes", n_episodes)))  # e.g. codes not yet built
-        self.seeds = read(self.store, group["seed"], slice(0, n_episodes))
         entry = world(store_world(dict(group.attrs)))
+        checks = store_checks(entry, dict(group.attrs))
+        self.seeds = read(self.store, group["seed"], slice(0, n_episodes), check=checks["seed"])  # they split it
         validation, held_out = split_of(entry, self.seeds[:n_episodes], val_fraction)
-        self._check = store_checks(entry, dict(group.attrs)).get(array)
+        self._check = checks.get(array)
         keep = {"train": ~validation & ~held_out, "validation": validation, "all": ~held_out}[split]
         self.episodes = np.nonzero(keep)[0]
         self.n_frames = self.array.shape[1]
@@ -81,14 +82,15 @@ class _EpisodeArray(Dataset):
         """All frames (T, …) of the split's i-th episode (read on first use, then kept)."""
         episode = int(self.episodes[i])
         if episode not in self._cache:
-            self._cache[episode] = read(
-                self.store,
-                self.array,
-                episode,
-                lambda rows: f"episode {episode}, seed {self.seeds[episode]}",
-                self._check,
-            )
+            self._cache[episode] = self.read_episode(i)
         return self._cache[episode]
+
+    def read_episode(self, i: int) -> np.ndarray:
+        """The split's i-th episode read from the store, checked (a ChunkError naming it where it is damaged), not
+        kept: for a caller that keeps its own copy."""
+        episode = int(self.episodes[i])
+        describe = lambda rows: f"episode {episode}, seed {self.seeds[episode]}"  # noqa: E731
+        return read(self.store, self.array, episode, describe, self._check)
 
 
 class FrameDataset(_EpisodeArray):

@@ -14,11 +14,16 @@ from pydantic import Field, model_validator
 from dynplan.config import Config, ConfigError
 from dynplan.world import DEFAULT_WORLD, world
 
+#: A configuration's name: part of its run folders' names, so letters, digits, '_', '.', '-' (up to 64).
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"
+
 
 class VQVAEConfig(Config):
     """Architecture and optimisation of a VQ-VAE; `PRESETS` holds the named ones."""
 
-    name: str = Field("custom", description="preset name, recorded in checkpoints")
+    name: str = Field(
+        "custom", pattern=NAME_PATTERN, description="preset name, recorded in checkpoints and run folders"
+    )
     world: str = Field(DEFAULT_WORLD, description="the world whose frames it encodes (its pixel values)")
     height: int = Field(48, ge=8, le=512, description="frame rows")
     width: int = Field(48, ge=8, le=512, description="frame columns")
@@ -136,7 +141,9 @@ PRESETS: dict[str, VQVAEConfig] = {
 class PixelCNNConfig(Config):
     """Size of the prior; `PIXELCNN_PRESETS` holds the named ones."""
 
-    name: str = Field("custom", description="preset name, recorded in checkpoints")
+    name: str = Field(
+        "custom", pattern=NAME_PATTERN, description="preset name, recorded in checkpoints and run folders"
+    )
     codebook_size: int = Field(512, ge=2, le=65536, description="K: code values (the VQ-VAE's codebook size)")
     context: int = Field(4, ge=1, le=16, description="previous code grids conditioned on")
     channels: int = Field(64, ge=4, le=1024, description="channels of both stacks")

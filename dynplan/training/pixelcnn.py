@@ -35,8 +35,8 @@ CODE_VERSION = "pixelcnn-1"
 
 
 def _windows(dataset: WindowDataset) -> np.ndarray:
-    """All of a split's code grids in memory: (E, T, h, w) uint16, as stored."""
-    return np.stack([dataset.array[int(e)] for e in dataset.episodes])
+    """All of a split's code grids in memory: (E, T, h, w) uint16, as stored, each episode read checked."""
+    return np.stack([dataset.read_episode(i) for i in range(len(dataset.episodes))])
 
 
 def train_pixelcnn(

@@ -133,7 +133,7 @@ def train_vqvae(
     model = VQVAE(config).to(device)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     train = FrameDataset(store, "train" if len(FrameDataset(store, "train").episodes) else "all")
-    frames = np.stack([train.array[int(e)] for e in train.episodes])  # (E, T, H, W) in memory, read once
+    frames = np.stack([train.read_episode(i) for i in range(len(train.episodes))])  # (E, T, H, W), read once, checked
     val = _validation_frames(store, budget.val_frames)
 
     if config.codebook_fit == "contents":
