@@ -291,3 +291,4 @@ def test_freeways_check_names_a_row_whose_actions_do_not_give_its_score(tmp_path
     (run_dir / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in picked))
     problems = Evaluate().check(FreewayEvaluation(results=str(tmp_path), run="sticky", role="evaluation"))
     assert len(problems) == 1 and f"episode={picked[1]['episode']}" in problems[0], problems
+    assert problems[0].startswith(f"{run_dir / 'episodes.jsonl'}:2: technique=zero "), problems  # the file and line

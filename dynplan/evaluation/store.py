@@ -331,7 +331,15 @@ class Run:
         """The rows that count: for each case, the last row whose provenance equals the manifest's. A row the
         manifest contradicts (`RunKind.conflict`: a seed it does not list, other playouts) is a StoreError naming
         the file, the line and the field: such a row was not written by this run and would vanish silently."""
-        return [row for _, row, reason in self._counted(manifest) if reason is None]
+        return [row for _, row in self.counted(manifest)]
+
+    def counted(self, manifest: Mapping | None = None) -> list[tuple[int, dict]]:
+        """`current`'s rows, each with its line in the episodes file (what a message about one names)."""
+        return [(number, row) for number, row, reason in self._counted(manifest) if reason is None]
+
+    def place(self, number: int) -> str:
+        """Where line `number` of the run's episodes is, as a message names it: `FILE:LINE`."""
+        return f"{shown(self.episodes_path)}:{number}"
 
     def stale(self, manifest: Mapping | None = None) -> list[tuple[int, str]]:
         """The rows kept but not counted, each as its line and why (the first provenance field that differs from

@@ -195,7 +195,8 @@ class Evaluate:
         holds)."""
         problems, run = [], Run(request.results, request.run, RUNS)
         run_settings = run.manifest()["settings"]
-        rows = run.current()
+        numbered = run.counted()
+        rows = [row for _, row in numbered]
         keys = [replay_key(row, run_settings) for row in rows]
         distinct = list({key: row for key, row in zip(keys, rows, strict=True)}.items())  # same game, same actions
         spawn = multiprocessing.get_context("spawn")  # fresh workers: nothing of this process's threads
@@ -204,10 +205,11 @@ class Evaluate:
             played = pool.map(replayed, [row for _, row in distinct], itertools.repeat(run_settings))
             shown = progress(played, total=len(distinct), description="rows replayed")
             replays = {key: replay for (key, _), replay in zip(distinct, shown, strict=True)}
-        for key, row in zip(keys, rows, strict=True):
+        for key, (number, row) in zip(keys, numbered, strict=True):
             problem = replay_problem(row, replays[key])
             if problem is not None:
-                problems.append(" ".join(f"{k}={row[k]}" for k in RUNS.case_keys) + f": {problem}")
+                case = " ".join(f"{k}={row[k]}" for k in RUNS.case_keys)
+                problems.append(f"{run.place(number)}: {case}: {problem}")
         return problems
 
     def describe(self, summary: list[dict]) -> list[str]:

@@ -168,10 +168,10 @@ class Evaluate:
         run = Run(request.results, request.run, RUNS)
         settings = run.manifest()["settings"]
         problems = []
-        for row in progress(run.current(), description="rows replayed"):
+        for number, row in progress(run.counted(), description="rows replayed"):
             problem = replay_check(row, settings)
             if problem is not None:
-                problems.append(f"technique={row['technique']} seed={row['seed']}: {problem}")
+                problems.append(f"{run.place(number)}: technique={row['technique']} seed={row['seed']}: {problem}")
         return problems
 
 

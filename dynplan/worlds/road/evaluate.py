@@ -170,15 +170,15 @@ class Evaluate:
     def check(self, request: RoadEvaluation) -> list[str]:
         """Each row's recorded episode as it was played: one line per row whose log is missing or differs from the
         digest the row records (a road row holds no actions; its episode is replayed from the log it names)."""
-        problems, digests = [], {}
-        for row in progress(request.store_run().current(), description="rows checked"):
+        problems, digests, run = [], {}, request.store_run()
+        for number, row in progress(run.counted(), description="rows checked"):
             path = log_path(request.log_dir, row["seed"])
             if path not in digests:
                 digests[path] = sha256_file(path) if path.exists() else None
             if digests[path] != row["log_sha256"]:
                 found = "missing" if digests[path] is None else f"sha256 {digests[path][:12]}…"
                 problems.append(
-                    f"technique={row['technique']} seed={row['seed']}: log {path} is {found}, "
+                    f"{run.place(number)}: technique={row['technique']} seed={row['seed']}: log {path} is {found}, "
                     f"the row was played on {row['log_sha256'][:12]}…"
                 )
         return problems
