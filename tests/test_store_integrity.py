@@ -336,6 +336,18 @@ def test_what_a_chunk_holds_is_checked_not_only_its_checksum(store, recorded_log
     assert verify_store(store).damage == []
 
 
+def test_another_episodes_intact_chunk_is_found_by_its_first_frame(store, recorded_logs):
+    """A chunk copied over another carries a valid checksum and the world's palette; its first frame is not what
+    its episode's seed records: `--verify` names it and repairs it from the logs, training refuses it."""
+    shutil.copy(store / "frames" / "c" / "1" / "0" / "0" / "0", store / "frames" / "c" / "3" / "0" / "0" / "0")
+    (damage,) = verify_store(store).damage
+    assert (damage.array, damage.chunk) == ("frames", "c/3/0/0/0")
+    assert damage.problem == "episode 3's first frame is not what its seed 3 records (another episode's?)"
+    with pytest.raises(ChunkError, match=r"chunk c/3/0/0/0 \(episode 3, seed 3\) .*first frame is not what its seed"):
+        FrameDataset(store, "all")[3 * 407]
+    assert all(d.repaired for d in verify_store(store, recorded_logs).damage) and verify_store(store).damage == []
+
+
 def test_training_reads_refuse_what_is_not_an_episode(store):
     """A model never trains on a missing chunk's fill values or on a pixel outside the world's."""
     (store / "frames" / "c" / "2" / "0" / "0" / "0").unlink()

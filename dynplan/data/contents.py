@@ -14,7 +14,8 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from dynplan.config import ConfigError
+from dynplan.cli import InputError
+from dynplan.config import Config, ConfigError
 from dynplan.world import World
 
 #: A check of values read from one array: why they are not what it holds (None: they are).
@@ -69,14 +70,44 @@ def goal_check(height: int, width: int) -> Check:
     return check
 
 
-def store_checks(entry: World, attributes: dict) -> dict[str, Check]:
+def first_frame_check(entry: World, config: Config, seeds: Sequence[int | None]) -> Check:
+    """A check that each episode's first frame is what its seed records (`seeds[episode]`; None: unknown, unchecked):
+    a checksum and the palette pass a chunk of another episode's frames, this does not. One frame an episode is
+    recorded (about 1 ms; a world whose recording needs a package not installed is left unchecked)."""
+
+    def check(frames: np.ndarray, first: int) -> str | None:
+        for i in range(len(frames) if frames.ndim == 4 else 0):
+            seed = seeds[first + i] if first + i < len(seeds) else None
+            if seed is None:
+                continue
+            try:
+                recorded = entry.record(config, int(seed), 1).frames[0]
+            except (ImportError, InputError):  # the world's package missing, or a seed the seed check names
+                return None
+            if not np.array_equal(frames[i, 0], recorded):
+                return f"episode {first + i}'s first frame is not what its seed {seed} records (another episode's?)"
+        return None
+
+    return check
+
+
+def both(*checks: Check) -> Check:
+    """The first problem any of `checks` finds."""
+    return lambda values, first: next((p for c in checks if (p := c(values, first)) is not None), None)
+
+
+def store_checks(entry: World, attributes: dict, seeds: Sequence[int | None] | None = None) -> dict[str, Check]:
     """The check of each array of a store of the world `entry` with these group attributes (its config, height and
-    width; a config that is not the world's leaves the frames unchecked: the metadata's check reports it)."""
+    width; a config that is not the world's leaves the frames unchecked: the metadata's check reports it); given
+    each episode's seed, also that each episode's frames are its seed's (`first_frame_check`)."""
     checks: dict[str, Check] = {"seed": seed_check(*entry.seeds)}
     config = attributes.get("config")
     with contextlib.suppress(ConfigError):
         if isinstance(config, dict):  # else damaged metadata, which the metadata's check names
-            checks["frames"] = pixel_check(entry.values(entry.config(config)))
+            recording = entry.config(config)
+            checks["frames"] = pixel_check(entry.values(recording))
+            if seeds is not None:
+                checks["frames"] = both(checks["frames"], first_frame_check(entry, recording, seeds))
     if isinstance(attributes.get("height"), int) and isinstance(attributes.get("width"), int):
         checks["goal"] = goal_check(attributes["height"], attributes["width"])
     return checks

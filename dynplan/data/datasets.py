@@ -65,7 +65,7 @@ class _EpisodeArray(Dataset):
         checks = store_checks(entry, dict(group.attrs))
         self.seeds = read(self.store, group["seed"], slice(0, n_episodes), check=checks["seed"])  # they split it
         validation, held_out = split_of(entry, self.seeds[:n_episodes], val_fraction)
-        self._check = checks.get(array)
+        self._check = store_checks(entry, dict(group.attrs), self.seeds).get(array)  # frames: their seeds' too
         keep = {"train": ~validation & ~held_out, "validation": validation, "all": ~held_out}[split]
         self.episodes = np.nonzero(keep)[0]
         self.n_frames = self.array.shape[1]

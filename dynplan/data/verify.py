@@ -131,7 +131,7 @@ def verify_store(
         group = zarr.open_group(store, mode="r+" if repair else "r", use_consolidated=False)
         names = [name for name in meta.shapes if name not in meta.damaged]
         report.damage.extend(_short_arrays(meta, n))
-        checks = _content_checks(dict(group.attrs))
+        checks = _content_checks(dict(group.attrs), _seeds(store, group, n) if "seed" in names else None)
         found = _check_chunks(store, group, names, n, report, checks)
         bad = {name: {c.key for c, _ in found[name]} for name in names}
         identity = {
@@ -149,13 +149,22 @@ def verify_store(
         return report
 
 
-def _content_checks(attributes: dict) -> dict[str, Check]:
-    """What each array may hold (`store_checks`); none where the store's world is not one of dynplan's (the metadata's
-    check reports that)."""
+def _content_checks(attributes: dict, seeds: list | None) -> dict[str, Check]:
+    """What each array may hold (`store_checks`, the frames against their `seeds` too); none where the store's world
+    is not one of dynplan's (the metadata's check reports that)."""
     try:
-        return store_checks(world(store_world(attributes)), attributes)
+        return store_checks(world(store_world(attributes)), attributes, seeds)
     except ConfigError:
         return {}
+
+
+def _seeds(store: str, group: zarr.Group, n: int) -> list:
+    """The first `n` seeds, None where their chunk cannot be read (its own check reports it)."""
+    array, values = group["seed"], [None] * n
+    for chunk in chunks(array, n):
+        if chunk_problem(store, array, chunk) is None:
+            values[chunk.rows.start : chunk.rows.stop] = [int(v) for v in array[chunk.region]]
+    return values
 
 
 def _short_arrays(meta: StoreMetadata, n: int) -> list[Damage]:
