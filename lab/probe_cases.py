@@ -6,11 +6,33 @@ from __future__ import annotations
 import json
 import shutil
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from lab.probe_inputs import PACKAGE, Case
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "dynplan"
+
+
+@dataclass
+class Case:
+    """One case: its class, what it is, the command's module and arguments (placeholders `{name}` filled from the
+    scene), what its line must name (any of), how to prepare it (on the case's folder) and how it is run."""
+
+    cls: int
+    what: str
+    module: str = ""
+    argv: list[str] = field(default_factory=list)
+    names: tuple[str, ...] = ()
+    prepare: Callable[[Path], None] | None = None
+    env: dict[str, str] | None = None  # run as a subprocess with these variables
+    call: Callable[[Path], object] | None = None  # an API call instead of a command
+    expect: str = "refused"  # or "ok"
+    interrupt_after: float | None = None  # subprocess: SIGINT after this many seconds
+    real: bool = False  # run its flows (a check inside them is the one judged), not stop them
+    report: bool = False  # a line per bad input (each naming it), then a summary, as --verify and builds give
+
 
 # --- helpers: copies of the scene's inputs, edited -------------------------------------------------------------
 

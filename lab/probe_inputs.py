@@ -30,13 +30,11 @@ import tempfile
 import time
 import traceback
 from collections import Counter
-from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from unittest import mock
 
-ROOT = Path(__file__).resolve().parents[1]
-PACKAGE = ROOT / "dynplan"
+from lab.probe_cases import PACKAGE, ROOT, Case, all_cases
+
 CLASSES = {
     1: "store contents",
     2: "result rows",
@@ -46,25 +44,6 @@ CLASSES = {
     7: "outputs confined",
     8: "interrupts and limits",
 }
-
-
-@dataclass
-class Case:
-    """One case: its class, what it is, the command's module and arguments (placeholders `{name}` filled from the
-    scene), what its line must name (any of), how to prepare it (on the case's folder) and how it is run."""
-
-    cls: int
-    what: str
-    module: str = ""
-    argv: list[str] = field(default_factory=list)
-    names: tuple[str, ...] = ()
-    prepare: Callable[[Path], None] | None = None
-    env: dict[str, str] | None = None  # run as a subprocess with these variables
-    call: Callable[[Path], object] | None = None  # an API call instead of a command
-    expect: str = "refused"  # or "ok"
-    interrupt_after: float | None = None  # subprocess: SIGINT after this many seconds
-    real: bool = False  # run its flows (a check inside them is the one judged), not stop them
-    report: bool = False  # a line per bad input (each naming it), then a summary, as --verify and builds give
 
 
 class Accepted(BaseException):
@@ -251,12 +230,6 @@ def run_case(case: Case, scene: Path, work: Path) -> dict:
 # --- the cases -----------------------------------------------------------------------------------------------
 
 
-def cases() -> list[Case]:
-    from lab.probe_cases import all_cases  # the case lists, by class
-
-    return all_cases()
-
-
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(prog="python -m lab.probe_inputs", description=__doc__)
     parser.add_argument("--out", help="write every case and its outcome here (JSON)")
@@ -271,7 +244,7 @@ def main(argv: list[str] | None = None) -> dict:
         scene = work / "scene"
         build_scene(scene)
         results = []
-        chosen = [c for c in cases() if args.only is None or c.cls == args.only]
+        chosen = [c for c in all_cases() if args.only is None or c.cls == args.only]
         for i, case in enumerate(chosen):
             results.append(run_case(case, scene, work))
             print(f"[{i + 1}/{len(chosen)}] {results[-1]['outcome']:9} {case.cls} {case.what}", file=sys.stderr)

@@ -16,7 +16,8 @@ PACKAGE = ROOT / "dynplan"
 LAB_PACKAGE = ROOT / "lab"
 #: Subpackage (or top-level module) → layer; a module may import its own layer and those below.
 LAYERS = {
-    "arguments": 0, "cli": 0, "config": 0, "extras": 0, "files": 0, "lazy": 0, "paths": 0, "progress": 0, "version": 0,
+    "arguments": 0, "cli": 0, "config": 0, "extras": 0, "files": 0, "interrupts": 0, "lazy": 0, "paths": 0,
+    "progress": 0, "version": 0,
     "env": 1,
     "logs": 2, "render": 2,
     "data": 3, "planning": 3, "view": 3,

@@ -234,6 +234,20 @@ def test_invalid_rows_and_manifests_are_never_written(tmp_path):
     assert (run.episodes_path.read_bytes(), run.manifest_path.read_bytes()) == (rows, manifest)
 
 
+def test_a_run_folder_that_cannot_be_read_is_refused_by_name(tmp_path, monkeypatch):
+    """Its rows would otherwise be left out of every table (a glob skips what it cannot list). The permission is
+    denied through `os.access`, as for a user other than the folder's owner (root reads every folder)."""
+    import os
+
+    run = small_run(tmp_path)
+    denied = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: Path(path) != run.dir and denied(path, mode))
+    with pytest.raises(
+        StoreError, match=rf"runs/{SMALL}: cannot be read \(permission denied\); what it holds would be left out"
+    ):
+        check_store(tmp_path)
+
+
 def test_episodes_without_a_manifest_are_refused(tmp_path):
     run = small_run(tmp_path)
     run.manifest_path.unlink()

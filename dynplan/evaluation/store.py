@@ -541,7 +541,9 @@ def _check_readable(folder: Path) -> None:
         return
     for path in (folder, *sorted(p for p in folder.iterdir() if p.is_dir())):
         if not os.access(path, os.R_OK | os.X_OK):
-            raise StoreError(f"{shown(path)}: cannot be read (permission denied); its runs would be left out")
+            raise StoreError(
+                f"{shown(path)}: cannot be read (permission denied); what it holds would be left out of every table"
+            )
 
 
 def check_store(root: str | os.PathLike) -> None:
