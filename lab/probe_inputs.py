@@ -237,6 +237,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     from prefect.testing.utilities import prefect_test_harness
 
+    import flows  # noqa: F401  (Prefect's defaults first: no telemetry from the probe's own API)
+
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # flows.play's window: SDL's dummy driver is its display
 
     with tempfile.TemporaryDirectory() as tmp, prefect_test_harness(server_startup_timeout=120):
