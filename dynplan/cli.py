@@ -172,42 +172,64 @@ STOP_WITHIN_S = 20.0
 class _Interrupt:
     """The SIGINT handler while a command runs: the first interrupt raises KeyboardInterrupt (a clean stop) and
     starts a clock that ends the process after `STOP_WITHIN_S` however busy its threads keep it; a second ends it
-    at once."""
+    at once. `said`: the command has said "interrupted" itself."""
 
     def __init__(self, prog: str) -> None:
-        self.prog, self.interrupted = prog, False
+        self.prog, self.interrupted, self.said, self.running = prog, False, False, True
+        self._timer: threading.Timer | None = None
 
     def __call__(self, signum: int, frame: object) -> None:
-        if self.interrupted:
+        if self.interrupted or not self.running:  # a second interrupt, or one after the command while it ends
             self.stop()
         self.interrupted = True
-        timer = threading.Timer(STOP_WITHIN_S, self.stop)
-        timer.daemon = True
-        timer.start()
+        self._timer = threading.Timer(STOP_WITHIN_S, self.stop)
+        self._timer.daemon = True
+        self._timer.start()
         raise KeyboardInterrupt
 
     def stop(self) -> None:
-        if not _Interrupt.said:
+        if not self.said:
             print(f"{self.prog}: interrupted; run it again to resume", file=sys.stderr, flush=True)
         os._exit(130)
 
-    #: Whether the command has said "interrupted" already (it stopped by itself, and its process is ending).
-    said = False
+    def cancel(self) -> None:
+        """No clock running any more (for a caller in this process that goes on after the command)."""
+        if self._timer is not None:
+            self._timer.cancel()
+
+
+def _handler(prog: str) -> _Interrupt | None:
+    """The command's SIGINT handler, installed where the interrupt is Python's or the loading one's (not in another
+    thread, not where SIGINT is ignored or someone else's)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    if signal.getsignal(signal.SIGINT) not in (interrupted_while_loading, signal.default_int_handler):
+        return None
+    handler = _Interrupt(prog)
+    signal.signal(signal.SIGINT, handler)
+    return handler
 
 
 def run_command(main: Callable[[list[str] | None], Any], prog: str, argv: list[str] | None = None) -> Any:
     """Run a command's `main`: an `InputError` (bad input met before or during the work) is one line and exit status
     2, any other error one line and exit status 1 (the traceback with `--debug`), an interrupt "interrupted" and
-    130 (within `STOP_WITHIN_S`, or at once on a second interrupt)."""
+    130 (within `STOP_WITHIN_S`, or at once on a second interrupt). As a process's entry point (`argv` None), an
+    interrupted command keeps its handler while the interpreter ends (waiting on threads, say), so a second
+    interrupt still ends it at once, without a traceback; called in-process (`argv` given), Python's handler is
+    put back and no clock is left running."""
     debug = "--debug" in (sys.argv[1:] if argv is None else argv)
-    main_thread = threading.current_thread() is threading.main_thread()
-    before = signal.getsignal(signal.SIGINT) if main_thread else None
-    if before in (interrupted_while_loading, signal.default_int_handler):
-        signal.signal(signal.SIGINT, _Interrupt(prog))
+    handler = _handler(prog)
     try:
         return _run_main(main, prog, argv, debug)
+    except SystemExit as stop:
+        if handler is not None and stop.code == 130:
+            handler.said = True
+        raise
     finally:
-        if before in (interrupted_while_loading, signal.default_int_handler):
+        if handler is not None:
+            handler.running = False
+        if handler is not None and (argv is not None or not handler.interrupted):
+            handler.cancel()
             signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
@@ -222,7 +244,6 @@ def _run_main(main: Callable[[list[str] | None], Any], prog: str, argv: list[str
         return result
     except KeyboardInterrupt:
         print(f"{prog}: interrupted; run it again to resume", file=sys.stderr, flush=True)
-        _Interrupt.said = True
         raise SystemExit(130) from None
     except Exception as error:
         if debug:

@@ -23,7 +23,7 @@ def interrupted_while_loading(signum: int, frame: object) -> None:
 
 def interrupt_while_loading() -> None:
     """Under `python -m`, an interrupt while the command's modules load is "interrupted" and exit status 130, not a
-    traceback of the import machinery. `run_command` restores Python's own handler when the command starts."""
+    traceback of the import machinery. `run_command` installs the command's own handler when the command starts."""
     argv = getattr(sys, "orig_argv", [])
     target = argv[argv.index("-m") + 1] if "-m" in argv[:-1] else ""
     ours = target.split(".")[0] in ("dynplan", "flows")

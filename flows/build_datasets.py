@@ -183,8 +183,9 @@ def main(argv: list[str] | None = None) -> dict:
 
 def _check_world(name: str | None, store: str) -> None:
     """`--world` must be the world of the store it names, where that store exists."""
-    if name is not None and Path(store, "zarr.json").is_file() and _store_world(store) != name:
-        raise ValueError(f"--world {name}: {store} holds the {_store_world(store)} world's episodes")
+    found = _store_world(store) if name is not None and Path(store, "zarr.json").is_file() else name
+    if found != name:
+        raise ValueError(f"--world {name}: {store} holds the {found} world's episodes")
 
 
 def _store_world(store: str) -> str:

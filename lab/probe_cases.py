@@ -320,129 +320,131 @@ _ML, _FL, _RL = (
 )
 
 
+WORLD_ROWS = [
+    ("road replay of a MiniGrid log", "flows.replay", [_ML, "--out", "{out}/r.mcap"], ("minigrid",)),
+    ("road replay of a Freeway log", "flows.replay", [_FL, "--out", "{out}/r.mcap"], ("freeway",)),
+    ("road play of a MiniGrid log", "flows.play", ["--log", _ML, "--no-imagination"], ("minigrid",)),
+    ("road play of a Freeway log", "flows.play", ["--log", _FL, "--no-imagination"], ("freeway",)),
+    (
+        "MiniGrid replay of a road log",
+        "flows.replay",
+        ["--world", "minigrid", _RL, "--out", "{out}/r.mcap"],
+        ("road",),
+    ),
+    (
+        "MiniGrid replay of a Freeway log",
+        "flows.replay",
+        ["--world", "minigrid", _FL, "--out", "{out}/r.mcap"],
+        ("freeway",),
+    ),
+    (
+        "Freeway replay of a road log",
+        "flows.replay",
+        ["--world", "freeway", _RL, "--out", "{out}/r.mcap"],
+        ("road",),
+    ),
+    (
+        "Freeway replay of a MiniGrid log",
+        "flows.replay",
+        ["--world", "freeway", _ML, "--out", "{out}/r.mcap"],
+        ("minigrid",),
+    ),
+    (
+        "a Freeway store of road logs",
+        "flows.build_datasets",
+        ["{scene}/logs", "--world", "freeway", "--out", "{out}/f.zarr"],
+        ("road", "freeway"),
+    ),
+    (
+        "a road store of MiniGrid logs",
+        "flows.build_datasets",
+        ["{scene}/mlogs", "--out", "{out}/m.zarr"],
+        ("minigrid",),
+    ),
+    (
+        "train --world minigrid on a road store",
+        "flows.train",
+        ["vqvae", "--world", "minigrid", "--store", "{scene}/store.zarr", "--out", "{out}/ck"],
+        ("road",),
+    ),
+    (
+        "train --model minigrid on a road store",
+        "flows.train",
+        ["vqvae", "--model", "minigrid", "--store", "{scene}/store.zarr", "--out", "{out}/ck"],
+        ("road",),
+    ),
+    (
+        "train --model freeway on a road store",
+        "flows.train",
+        ["vqvae", "--model", "freeway", "--store", "{scene}/store.zarr", "--out", "{out}/ck"],
+        ("road",),
+    ),
+    (
+        "MiniGrid evaluate with road weights",
+        "flows.evaluate",
+        [
+            "--world",
+            "minigrid",
+            "--techniques",
+            "learned10",
+            "--episodes",
+            "1",
+            "--results-dir",
+            "{out}/m",
+            "--model-dir",
+            "{scene}/models",
+        ],
+        ("models",),
+    ),
+    (
+        "Freeway evaluate with road weights",
+        "flows.evaluate",
+        [
+            "--world",
+            "freeway",
+            "--techniques",
+            "learned",
+            "--modes",
+            "0",
+            "--episodes",
+            "1",
+            "--results-dir",
+            "{out}/f",
+            "--model-dir",
+            "{scene}/models/default",
+        ],
+        ("models",),
+    ),
+    (
+        "--verify --world freeway of a road store",
+        "flows.build_datasets",
+        ["--verify", "{scene}/store.zarr", "--world", "freeway"],
+        ("road",),
+    ),
+    (
+        "road evaluate with Freeway's weights",
+        "flows.evaluate",
+        [
+            "--techniques",
+            "samples5",
+            "--models",
+            "default",
+            "--episodes",
+            "1",
+            "--log-dir",
+            "{out}/el",
+            "--results-dir",
+            "{out}/r",
+            "--model-dir",
+            "{scene}/fmodels",
+        ],
+        ("fmodels",),
+    ),
+]
+
+
 def world_cases() -> list[Case]:
-    rows = [
-        ("road replay of a MiniGrid log", "flows.replay", [_ML, "--out", "{out}/r.mcap"], ("minigrid",)),
-        ("road replay of a Freeway log", "flows.replay", [_FL, "--out", "{out}/r.mcap"], ("freeway",)),
-        ("road play of a MiniGrid log", "flows.play", ["--log", _ML, "--no-imagination"], ("minigrid",)),
-        ("road play of a Freeway log", "flows.play", ["--log", _FL, "--no-imagination"], ("freeway",)),
-        (
-            "MiniGrid replay of a road log",
-            "flows.replay",
-            ["--world", "minigrid", _RL, "--out", "{out}/r.mcap"],
-            ("road",),
-        ),
-        (
-            "MiniGrid replay of a Freeway log",
-            "flows.replay",
-            ["--world", "minigrid", _FL, "--out", "{out}/r.mcap"],
-            ("freeway",),
-        ),
-        (
-            "Freeway replay of a road log",
-            "flows.replay",
-            ["--world", "freeway", _RL, "--out", "{out}/r.mcap"],
-            ("road",),
-        ),
-        (
-            "Freeway replay of a MiniGrid log",
-            "flows.replay",
-            ["--world", "freeway", _ML, "--out", "{out}/r.mcap"],
-            ("minigrid",),
-        ),
-        (
-            "a Freeway store of road logs",
-            "flows.build_datasets",
-            ["{scene}/logs", "--world", "freeway", "--out", "{out}/f.zarr"],
-            ("road", "freeway"),
-        ),
-        (
-            "a road store of MiniGrid logs",
-            "flows.build_datasets",
-            ["{scene}/mlogs", "--out", "{out}/m.zarr"],
-            ("minigrid",),
-        ),
-        (
-            "train --world minigrid on a road store",
-            "flows.train",
-            ["vqvae", "--world", "minigrid", "--store", "{scene}/store.zarr", "--out", "{out}/ck"],
-            ("road",),
-        ),
-        (
-            "train --model minigrid on a road store",
-            "flows.train",
-            ["vqvae", "--model", "minigrid", "--store", "{scene}/store.zarr", "--out", "{out}/ck"],
-            ("road",),
-        ),
-        (
-            "train --model freeway on a road store",
-            "flows.train",
-            ["vqvae", "--model", "freeway", "--store", "{scene}/store.zarr", "--out", "{out}/ck"],
-            ("road",),
-        ),
-        (
-            "MiniGrid evaluate with road weights",
-            "flows.evaluate",
-            [
-                "--world",
-                "minigrid",
-                "--techniques",
-                "learned10",
-                "--episodes",
-                "1",
-                "--results-dir",
-                "{out}/m",
-                "--model-dir",
-                "{scene}/models",
-            ],
-            ("models",),
-        ),
-        (
-            "Freeway evaluate with road weights",
-            "flows.evaluate",
-            [
-                "--world",
-                "freeway",
-                "--techniques",
-                "learned",
-                "--modes",
-                "0",
-                "--episodes",
-                "1",
-                "--results-dir",
-                "{out}/f",
-                "--model-dir",
-                "{scene}/models/default",
-            ],
-            ("models",),
-        ),
-        (
-            "--verify --world freeway of a road store",
-            "flows.build_datasets",
-            ["--verify", "{scene}/store.zarr", "--world", "freeway"],
-            ("road",),
-        ),
-        (
-            "road evaluate with Freeway's weights",
-            "flows.evaluate",
-            [
-                "--techniques",
-                "samples5",
-                "--models",
-                "default",
-                "--episodes",
-                "1",
-                "--log-dir",
-                "{out}/el",
-                "--results-dir",
-                "{out}/r",
-                "--model-dir",
-                "{scene}/fmodels",
-            ],
-            ("fmodels",),
-        ),
-    ]
-    out = [Case(4, what, module, argv, names) for what, module, argv, names in rows]
+    out = [Case(4, what, module, argv, names) for what, module, argv, names in WORLD_ROWS]
     out[-1].prepare = _freeway_models
     for case in out:
         if case.module == "flows.build_datasets" and "--verify" not in case.argv:
@@ -466,10 +468,6 @@ _SETS = ["codebook_size=true", 'codebook_size="8"', "codebook_size=8.5", "learni
          'codebook_size={"a":1}', "codebook_size=-1", "learning_rate=-Infinity"]  # fmt: skip
 
 
-def _api(call: Callable[[Path], object]) -> Callable[[Path], object]:
-    return call
-
-
 def type_cases() -> list[Case]:
     out = [Case(5, f"--set {s}", "flows.train", ["vqvae", "--store", "{scene}/store.zarr", "--out", "{out}/ck",
                                                   "--set", s], (s.split("=")[0],)) for s in _SETS]  # fmt: skip
@@ -478,7 +476,7 @@ def type_cases() -> list[Case]:
         "generate_world(seed='5')": (lambda f: _gw("5"), ("seed",)),
         "generate_world(seed=-1)": (lambda f: _gw(-1), ("seed",)),
         "generate_world(seed=2**64)": (lambda f: _gw(2**64), ("seed",)),
-        "generate_world(seed=3.0)": (lambda f: _gw(3.5), ("seed",)),
+        "generate_world(seed=3.5)": (lambda f: _gw(3.5), ("seed",)),
         "RoadConfig(level='6')": (lambda f: _config("dynplan.env", "RoadConfig", level="6"), ("level",)),
         "RoadConfig(level=True)": (lambda f: _config("dynplan.env", "RoadConfig", level=True), ("level",)),
         "AgentSpec(playouts=1.5)": (
@@ -577,96 +575,98 @@ def environment_cases() -> list[Case]:
 # --- class 7: outputs confined ---------------------------------------------------------------------------------------
 
 
+OUTPUT_ROWS = [
+    (
+        "train --out inside the package",
+        "flows.train",
+        ["vqvae", "--store", "{scene}/store.zarr", "--out", "{package}/models/runs"],
+        ("--out",),
+    ),
+    (
+        "collect --out inside the package",
+        "flows.collect",
+        ["--out", "{package}/logs", "--episodes", "1"],
+        ("--out",),
+    ),
+    (
+        "build --out inside the package",
+        "flows.build_datasets",
+        ["{scene}/logs", "--out", "{package}/s.zarr"],
+        ("--out",),
+    ),
+    ("replay --out inside the package", "flows.replay", [_RL, "--out", "{package}/r.mcap"], ("--out",)),
+    (
+        "replay --gif inside the package",
+        "flows.replay",
+        [_RL, "--out", "{out}/r.mcap", "--gif", "{package}/r.gif"],
+        ("--gif",),
+    ),
+    (
+        "results --docs inside the store",
+        "dynplan.evaluation.results",
+        ["--results-dir", "{scene}/results", "--docs", "{scene}/results/runs", "--readme", ""],
+        ("--docs",),
+    ),
+    (
+        "results --docs inside the package",
+        "dynplan.evaluation.results",
+        ["--results-dir", "{scene}/results", "--docs", "{package}", "--readme", ""],
+        ("--docs",),
+    ),
+    (
+        "results --readme inside the store",
+        "dynplan.evaluation.results",
+        ["--results-dir", "{scene}/results", "--docs", "{out}", "--readme", "{scene}/results/R.md"],
+        ("--readme",),
+    ),
+    (
+        "evaluate --results-dir inside --log-dir",
+        "flows.evaluate",
+        ["--log-dir", "{out}/el", "--results-dir", "{out}/el/res", "--episodes", "1"],
+        ("--results-dir",),
+    ),
+    (
+        "evaluate --log-dir inside the package",
+        "flows.evaluate",
+        ["--log-dir", "{package}/el", "--results-dir", "{out}/res", "--episodes", "1"],
+        ("--log-dir",),
+    ),
+    ("pipeline --out inside the package", "flows.collect_train_eval", ["--out", "{package}/quick"], ("--out",)),
+    (
+        "train --tensorboard inside the store",
+        "flows.train",
+        ["vqvae", "--store", "{scene}/store.zarr", "--out", "{out}/ck", "--tensorboard", "{scene}/store.zarr/tb"],
+        ("--tensorboard",),
+    ),
+    (
+        "build --out inside its log folder",
+        "flows.build_datasets",
+        ["{scene}/logs", "--out", "{scene}/logs/s.zarr"],
+        ("--out",),
+    ),
+    (
+        "view --screenshot inside the package",
+        "flows.view",
+        [_RL, "--screenshot", "{package}/s.png"],
+        ("--screenshot",),
+    ),
+    (
+        "freeway evaluate --results-dir inside the package",
+        "flows.evaluate",
+        ["--world", "freeway", "--results-dir", "{package}/fr", "--episodes", "1", "--modes", "0"],
+        ("--results-dir",),
+    ),
+    (
+        "minigrid evaluate --results-dir inside the package",
+        "flows.evaluate",
+        ["--world", "minigrid", "--results-dir", "{package}/mr", "--episodes", "1"],
+        ("--results-dir",),
+    ),
+]
+
+
 def output_cases() -> list[Case]:
-    rows = [
-        (
-            "train --out inside the package",
-            "flows.train",
-            ["vqvae", "--store", "{scene}/store.zarr", "--out", "{package}/models/runs"],
-            ("--out",),
-        ),
-        (
-            "collect --out inside the package",
-            "flows.collect",
-            ["--out", "{package}/logs", "--episodes", "1"],
-            ("--out",),
-        ),
-        (
-            "build --out inside the package",
-            "flows.build_datasets",
-            ["{scene}/logs", "--out", "{package}/s.zarr"],
-            ("--out",),
-        ),
-        ("replay --out inside the package", "flows.replay", [_RL, "--out", "{package}/r.mcap"], ("--out",)),
-        (
-            "replay --gif inside the package",
-            "flows.replay",
-            [_RL, "--out", "{out}/r.mcap", "--gif", "{package}/r.gif"],
-            ("--gif",),
-        ),
-        (
-            "results --docs inside the store",
-            "dynplan.evaluation.results",
-            ["--results-dir", "{scene}/results", "--docs", "{scene}/results/runs", "--readme", ""],
-            ("--docs",),
-        ),
-        (
-            "results --docs inside the package",
-            "dynplan.evaluation.results",
-            ["--results-dir", "{scene}/results", "--docs", "{package}", "--readme", ""],
-            ("--docs",),
-        ),
-        (
-            "results --readme inside the store",
-            "dynplan.evaluation.results",
-            ["--results-dir", "{scene}/results", "--docs", "{out}", "--readme", "{scene}/results/R.md"],
-            ("--readme",),
-        ),
-        (
-            "evaluate --results-dir inside --log-dir",
-            "flows.evaluate",
-            ["--log-dir", "{out}/el", "--results-dir", "{out}/el/res", "--episodes", "1"],
-            ("--results-dir",),
-        ),
-        (
-            "evaluate --log-dir inside the package",
-            "flows.evaluate",
-            ["--log-dir", "{package}/el", "--results-dir", "{out}/res", "--episodes", "1"],
-            ("--log-dir",),
-        ),
-        ("pipeline --out inside the package", "flows.collect_train_eval", ["--out", "{package}/quick"], ("--out",)),
-        (
-            "train --tensorboard inside the store",
-            "flows.train",
-            ["vqvae", "--store", "{scene}/store.zarr", "--out", "{out}/ck", "--tensorboard", "{scene}/store.zarr/tb"],
-            ("--tensorboard",),
-        ),
-        (
-            "build --out inside its log folder",
-            "flows.build_datasets",
-            ["{scene}/logs", "--out", "{scene}/logs/s.zarr"],
-            ("--out",),
-        ),
-        (
-            "view --screenshot inside the package",
-            "flows.view",
-            [_RL, "--screenshot", "{package}/s.png"],
-            ("--screenshot",),
-        ),
-        (
-            "freeway evaluate --results-dir inside the package",
-            "flows.evaluate",
-            ["--world", "freeway", "--results-dir", "{package}/fr", "--episodes", "1", "--modes", "0"],
-            ("--results-dir",),
-        ),
-        (
-            "minigrid evaluate --results-dir inside the package",
-            "flows.evaluate",
-            ["--world", "minigrid", "--results-dir", "{package}/mr", "--episodes", "1"],
-            ("--results-dir",),
-        ),
-    ]
-    return [Case(7, what, module, argv, names) for what, module, argv, names in rows]
+    return [Case(7, what, module, argv, names) for what, module, argv, names in OUTPUT_ROWS]
 
 
 # --- class 8: interrupts and limits --------------------------------------------------------------------------------

@@ -103,7 +103,8 @@ def _results_argv(root: Path) -> list[str]:
 def tree_state(root: Path, skip: Path) -> dict[str, str]:
     state = {}
     for path in sorted(root.rglob("*")):
-        if path.is_file() and skip not in path.parents and not path.name.endswith(".lock"):
+        ignored = path.name.endswith(".lock") or "__pycache__" in path.parts  # a lock, or bytecode an import wrote
+        if path.is_file() and skip not in path.parents and not ignored:
             state[str(path.relative_to(root))] = hashlib.sha256(path.read_bytes()).hexdigest()
     return state
 
@@ -237,7 +238,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     from prefect.testing.utilities import prefect_test_harness
 
-    import flows  # noqa: F401  (Prefect's defaults first: no telemetry from the probe's own API)
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")  # no telemetry from the probe's own API
 
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")  # flows.play's window: SDL's dummy driver is its display
 

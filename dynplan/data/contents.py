@@ -75,16 +75,21 @@ def first_frame_check(entry: World, config: Config, seeds: Sequence[int | None])
     a checksum and the palette pass a chunk of another episode's frames, this does not. One frame an episode is
     recorded (about 1 ms; a world whose recording needs a package not installed is left unchecked)."""
 
+    recorded: dict[int, np.ndarray | None] = {}  # seed → its first frame (None: it cannot be recorded here)
+
+    def first_frame(seed: int) -> np.ndarray | None:
+        if seed not in recorded:
+            try:
+                recorded[seed] = entry.record(config, seed, 1).frames[0]
+            except (ImportError, InputError):  # the world's package missing, or a seed the seed check names
+                recorded[seed] = None
+        return recorded[seed]
+
     def check(frames: np.ndarray, first: int) -> str | None:
         for i in range(len(frames) if frames.ndim == 4 else 0):
             seed = seeds[first + i] if first + i < len(seeds) else None
-            if seed is None:
-                continue
-            try:
-                recorded = entry.record(config, int(seed), 1).frames[0]
-            except (ImportError, InputError):  # the world's package missing, or a seed the seed check names
-                return None
-            if not np.array_equal(frames[i, 0], recorded):
+            expected = None if seed is None else first_frame(int(seed))
+            if expected is not None and not np.array_equal(frames[i, 0], expected):
                 return f"episode {first + i}'s first frame is not what its seed {seed} records (another episode's?)"
         return None
 

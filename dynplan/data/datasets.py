@@ -20,7 +20,7 @@ import zarr
 from torch.utils.data import Dataset
 
 from dynplan.data.chunks import check_present, read
-from dynplan.data.contents import store_checks
+from dynplan.data.contents import seed_check, store_checks
 from dynplan.data.history import context_indices, first_target
 from dynplan.data.store import store_world
 from dynplan.world import World, world
@@ -62,8 +62,9 @@ class _EpisodeArray(Dataset):
         n_episodes = int(group.attrs.get("episodes", 0))  # committed episodes (arrays may run longer)
         n_episodes = min(n_episodes, int(self.array.attrs.get("episodes", n_episodes)))  # e.g. codes not yet built
         entry = world(store_world(dict(group.attrs)))
-        checks = store_checks(entry, dict(group.attrs))
-        self.seeds = read(self.store, group["seed"], slice(0, n_episodes), check=checks["seed"])  # they split it
+        self.seeds = read(
+            self.store, group["seed"], slice(0, n_episodes), check=seed_check(*entry.seeds)
+        )  # they split it
         validation, held_out = split_of(entry, self.seeds[:n_episodes], val_fraction)
         self._check = store_checks(entry, dict(group.attrs), self.seeds).get(array)  # frames: their seeds' too
         keep = {"train": ~validation & ~held_out, "validation": validation, "all": ~held_out}[split]

@@ -160,11 +160,8 @@ def _content_checks(attributes: dict, seeds: list | None) -> dict[str, Check]:
 
 def _seeds(store: str, group: zarr.Group, n: int) -> list:
     """The first `n` seeds, None where their chunk cannot be read (its own check reports it)."""
-    array, values = group["seed"], [None] * n
-    for chunk in chunks(array, n):
-        if chunk_problem(store, array, chunk) is None:
-            values[chunk.rows.start : chunk.rows.stop] = [int(v) for v in array[chunk.region]]
-    return values
+    array = group["seed"]
+    return _column(array, n, {c.key for c in chunks(array, n) if chunk_problem(store, array, c) is not None})
 
 
 def _short_arrays(meta: StoreMetadata, n: int) -> list[Damage]:

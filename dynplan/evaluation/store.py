@@ -358,8 +358,8 @@ class Run:
                 problem = kind.conflict(manifest, row)
             if problem is not None:
                 raise StoreError(
-                    f"{shown(self.episodes_path)}:{number}: {problem} ({shown(self.manifest_path)}); restore the "
-                    "manifest or move the row to its own run"
+                    f"{self.place(number)}: {problem} ({shown(self.manifest_path)}); restore the manifest or move "
+                    "the row to its own run"
                 )
             reason = _difference(kind.provenance_of(row), kind.expected(manifest, row))
             if reason is None:
@@ -539,11 +539,16 @@ def _check_readable(folder: Path) -> None:
     otherwise be left out of every table without a word."""
     if not folder.is_dir():
         return
-    for path in (folder, *sorted(p for p in folder.iterdir() if p.is_dir())):
-        if not os.access(path, os.R_OK | os.X_OK):
-            raise StoreError(
-                f"{shown(path)}: cannot be read (permission denied); what it holds would be left out of every table"
-            )
+    _check_listable(folder)  # before listing it: a folder that cannot be listed is named, not an OSError
+    for path in sorted(p for p in folder.iterdir() if p.is_dir()):
+        _check_listable(path)
+
+
+def _check_listable(path: Path) -> None:
+    if not os.access(path, os.R_OK | os.X_OK):
+        raise StoreError(
+            f"{shown(path)}: cannot be read (permission denied); what it holds would be left out of every table"
+        )
 
 
 def check_store(root: str | os.PathLike) -> None:
