@@ -110,8 +110,7 @@ def checked_window_options(
     return script
 
 
-#: The most keys a `--script` holds: one a frame, more than any world's episode lasts (the road's 407 frames,
-#: Freeway's 2,048 steps).
+#: The most keys a `--script` holds: one a frame, more than any registered world's episode lasts (at most 2,048).
 MAX_SCRIPT = 10_000
 NO_DISPLAY = (
     "no display to open the window on (DISPLAY and WAYLAND_DISPLAY are unset): run it on a desktop, or headless "
