@@ -26,8 +26,12 @@ from typing import IO
 
 from dynplan.cli import add_debug_option, die_with_parent
 
-#: Seconds to wait for the temporary server's health check.
-STARTUP_TIMEOUT_S = 120.0
+#: CPU seconds the temporary server may spend starting (a new `PREFECT_HOME` first creates its database) before it
+#: is declared stuck: counted on the server's own clock, so a loaded host, which stretches the wall-clock start, does
+#: not fail it.
+STARTUP_CPU_S = 120.0
+#: Wall-clock seconds at most, for a server that waits without working.
+STARTUP_WALL_S = 900.0
 
 
 def _free_port() -> int:
@@ -52,11 +56,23 @@ def _last_line(log: IO[bytes]) -> str:
     return f": {lines[-1]}" if lines else ""
 
 
+def _cpu_seconds(server: subprocess.Popen) -> float:
+    """The CPU time the server process has used so far (0 once it is gone)."""
+    import psutil
+
+    try:
+        times = psutil.Process(server.pid).cpu_times()
+    except psutil.Error:
+        return 0.0
+    return times.user + times.system
+
+
 def _wait_until_healthy(server: subprocess.Popen, url: str, log: IO[bytes]) -> None:
-    """Wait for the server's health check; a server that exits or stays silent is a RuntimeError saying so."""
+    """Wait for the server's health check; a server that exits or does not answer after `STARTUP_CPU_S` of its own
+    CPU time (or `STARTUP_WALL_S`) is a RuntimeError saying so."""
     import httpx
 
-    deadline = time.monotonic() + STARTUP_TIMEOUT_S
+    started = time.monotonic()
     with httpx.Client() as client:
         while True:
             if server.poll() is not None:
@@ -68,9 +84,11 @@ def _wait_until_healthy(server: subprocess.Popen, url: str, log: IO[bytes]) -> N
                     return
             except httpx.HTTPError:
                 pass
-            if time.monotonic() > deadline:
+            waited = time.monotonic() - started
+            if (used := _cpu_seconds(server)) > STARTUP_CPU_S or waited > STARTUP_WALL_S:
                 raise RuntimeError(
-                    f"the temporary Prefect API server did not answer within {STARTUP_TIMEOUT_S} s{_last_line(log)}"
+                    f"the temporary Prefect API server did not answer in {waited:.0f} s"
+                    f" ({used:.0f} s of its CPU time){_last_line(log)}"
                 )
             time.sleep(0.1)
 

@@ -59,6 +59,27 @@ def failing_main(argv=None):
     raise RuntimeError("the disk is on fire")
 
 
+@pytest.mark.parametrize("work", ["busy", "idle"])
+def test_a_server_that_never_answers_is_named_after_its_own_cpu_time_or_the_wall_clock(work, monkeypatch, tmp_path):
+    """The temporary server's start is bounded by its own CPU time (a loaded host stretches only the wall clock), and
+    a server that waits without working by the wall clock; either way one error saying how long it was given."""
+    from flows import cli
+
+    monkeypatch.setattr(cli, "STARTUP_CPU_S", 1.0)
+    monkeypatch.setattr(cli, "STARTUP_WALL_S", 600.0 if work == "busy" else 2.0)
+    body = "any(iter(int, 1))" if work == "busy" else "import time; time.sleep(600)"
+    with (tmp_path / "log").open("w+b") as log:
+        server = subprocess.Popen([sys.executable, "-c", f"print('starting', flush=True); {body}"], stdout=log)
+        try:
+            with pytest.raises(RuntimeError, match=r"did not answer in \d+ s \(\d+ s of its CPU time\): starting$"):
+                cli._wait_until_healthy(server, f"http://127.0.0.1:{cli._free_port()}/api", log)
+            used = cli._cpu_seconds(server)
+        finally:
+            server.kill()
+            server.wait()
+    assert used >= 1.0 if work == "busy" else used < 1.0
+
+
 def test_an_unexpected_error_is_one_line_and_exit_1(monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["python -m flows.x"])
     with temporary_settings(updates={PREFECT_API_URL: "http://127.0.0.1:9/api"}), pytest.raises(SystemExit) as exit_:
