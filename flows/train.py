@@ -96,6 +96,13 @@ def _parser() -> CommandParser:
         )
     parser.add_argument("--device", help="torch device to train on, e.g. cuda (default: the CPU); same run folder")
     parser.add_argument(
+        "--precision",
+        choices=["float32", "bfloat16"],
+        default="float32",
+        help="arithmetic of the training steps (bfloat16: autocast, on a device with bfloat16 instructions; "
+        "a run folder of its own)",
+    )
+    parser.add_argument(
         "--init-from",
         type=PathArgument(PathKind.WEIGHTS),
         metavar="CHECKPOINT",
@@ -126,6 +133,7 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
         threads=args.threads,
         init_from=args.init_from,
         device=args.device,
+        precision=args.precision,
     ).model_dump()
     preset = world_model_spec(args.model)
     if overrides.get("world", preset.world) != preset.world:  # the store is checked against the model's world

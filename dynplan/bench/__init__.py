@@ -16,6 +16,7 @@ from dynplan.bench.evaluation import bench_evaluation
 from dynplan.bench.generation import bench_generation
 from dynplan.bench.mcts import bench_mcts
 from dynplan.bench.pipeline import bench_pipeline
+from dynplan.bench.precision import bench_precision
 from dynplan.bench.prior import bench_prior
 from dynplan.bench.sharing import bench_sharing
 from dynplan.bench.startup import bench_startup
@@ -32,6 +33,7 @@ BENCHMARKS: dict[str, Callable[..., Results]] = {
     "mcts": bench_mcts,
     "vqvae": bench_vqvae,
     "prior": bench_prior,
+    "precision": bench_precision,
     "generation": bench_generation,
     "decoding": bench_decoding,
     "decision": bench_decision,

@@ -22,11 +22,11 @@ def _channel_axis_loss(model: ConditionalPixelCNN, context: torch.Tensor, target
     return F.cross_entropy(model.logits(target, model.condition(context)), target)
 
 
-def _rows_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def rows_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return model(context, target).loss
 
 
-def _train_rate(
+def train_rate(
     model: ConditionalPixelCNN,
     loss_fn: Callable,
     optimiser: torch.optim.Optimizer,
@@ -58,11 +58,11 @@ def bench_prior(
         context = torch.randint(0, config.codebook_size, (config.batch_size, config.context, h, w))
         target = torch.randint(0, config.codebook_size, (config.batch_size, h, w))
         rates: dict[str, list[float]] = {"baseline": [], "ours": []}
-        for fn in (_channel_axis_loss, _rows_loss):  # warm-up
-            _train_rate(model, fn, optimiser, context, target, 1)
+        for fn in (_channel_axis_loss, rows_loss):  # warm-up
+            train_rate(model, fn, optimiser, context, target, 1)
         for _ in range(repeats):
-            rates["baseline"].append(_train_rate(model, _channel_axis_loss, optimiser, context, target, steps))
-            rates["ours"].append(_train_rate(model, _rows_loss, optimiser, context, target, steps))
+            rates["baseline"].append(train_rate(model, _channel_axis_loss, optimiser, context, target, steps))
+            rates["ours"].append(train_rate(model, rows_loss, optimiser, context, target, steps))
         ours, baseline = statistics.median(rates["ours"]), statistics.median(rates["baseline"])
         results[name] = {
             "train_windows_per_s": round(ours, 1),

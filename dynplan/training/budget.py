@@ -3,9 +3,9 @@ command, preset or registry entry can name and check a budget without importing 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from dynplan.config import Config
 
@@ -24,8 +24,11 @@ class TrainBudget(Config):
     seed: int = Field(0, ge=0, le=2**62, description="seed of initialisation and batch order")
     init_from: str | None = Field(None, description="checkpoint whose model weights start the run (fine-tuning)")
     device: str | None = Field(None, description="torch device to train on, e.g. 'cuda' (default: the CPU)")
+    precision: Literal["float32", "bfloat16"] = Field(
+        "float32", description="arithmetic of the training steps: bfloat16 autocast needs a device that has it"
+    )
 
-    _neutral = {"init_from": None, "device": None}
+    _neutral = {"init_from": None, "device": None, "precision": "float32"}
 
     @field_validator("device")
     @classmethod
@@ -40,6 +43,16 @@ class TrainBudget(Config):
             if device.type == "cuda" and not torch.cuda.is_available():
                 raise ValueError(f"device {value!r}: this torch build sees no CUDA device (torch {torch.__version__})")
         return value
+
+    @model_validator(mode="after")
+    def _device_has_precision(self) -> TrainBudget:
+        if self.precision == "bfloat16":
+            from dynplan.training.precision import bfloat16_missing  # torch, only when bfloat16 is asked for
+
+            missing = bfloat16_missing(self.torch_device)
+            if missing:
+                raise ValueError(f"precision='bfloat16': {missing}; valid here: float32")
+        return self
 
     @property
     def torch_device(self) -> torch.device:

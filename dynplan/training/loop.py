@@ -155,6 +155,7 @@ def train(
                 "history": history,
                 "torch_rng": torch.get_rng_state(),
                 "init_from": budget.init_from,
+                "precision": budget.precision,
             },
         )
         write_csv(out_dir / "metrics.csv", history)
@@ -176,7 +177,10 @@ def export_weights(latest: str | os.PathLike, final: str | os.PathLike, kind: st
     the end of a run, or a snapshot of one still training to commit as pretrained weights."""
     state = checkpoint.load(latest, kind, config)
     kept = ("kind", "config", "model", "epoch", "elapsed_s", "history", "init_from")
-    return checkpoint.save(final, {key: state.get(key) for key in kept})
+    # a checkpoint written before runs recorded their precision trained in float32
+    return checkpoint.save(
+        final, {**{key: state.get(key) for key in kept}, "precision": state.get("precision", "float32")}
+    )
 
 
 def _cpu(state):

@@ -28,6 +28,7 @@ from dynplan.models.vqvae import VQVAE
 from dynplan.render import comparison_columns
 from dynplan.training import loop
 from dynplan.training.budget import TrainBudget
+from dynplan.training.precision import autocast
 
 KIND = PIXELCNN_KIND
 #: Part of a training run's cache key; bump it when a change would change what training produces.
@@ -80,7 +81,8 @@ def train_pixelcnn(
         if config.learning_rate_halflife:
             for group in optimiser.param_groups:
                 group["lr"] = learning_rate(config, _steps_taken(optimiser))
-        out = model(window[:, :-1], window[:, -1])
+        with autocast(device, budget.precision):
+            out = model(window[:, :-1], window[:, -1])
         optimiser.zero_grad(set_to_none=True)
         out.loss.backward()
         optimiser.step()

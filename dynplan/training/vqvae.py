@@ -23,6 +23,7 @@ from dynplan.models.metrics import frame_errors
 from dynplan.models.vqvae import SHARPNESS_GRID, VQVAE, padded
 from dynplan.training import loop
 from dynplan.training.budget import TrainBudget
+from dynplan.training.precision import Precision, autocast
 
 KIND = VQVAE_KIND
 #: Part of a training run's cache key. Bump it whenever a change to the model, likelihood, quantizer or this
@@ -137,9 +138,9 @@ def train_vqvae(
     val = _validation_frames(store, budget.val_frames)
 
     if config.codebook_fit == "contents":
-        step, epoch_end = _content_fit(model, optimiser, frames, config)
+        step, epoch_end = _content_fit(model, optimiser, frames, config, budget.precision)
     else:
-        step, epoch_end = _frame_steps(model, optimiser, frames, config)
+        step, epoch_end = _frame_steps(model, optimiser, frames, config, budget.precision)
 
     def plot(folder: Path) -> None:
         plot_reconstructions(model, val, folder / "reconstructions.png")
@@ -164,7 +165,7 @@ Step = Callable[[torch.Generator], dict[str, float]]
 
 
 def _frame_steps(
-    model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
+    model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig, precision: Precision
 ) -> tuple[Step, Callable[[], dict[str, float]]]:
     """The usual VQ-VAE training: batches of whole frames through encoder, quantizer and decoder."""
     E, T = frames.shape[:2]
@@ -174,8 +175,9 @@ def _frame_steps(
     def step(generator: torch.Generator) -> dict[str, float]:
         e = torch.randint(0, E, (config.batch_size,), generator=generator).numpy()
         t = torch.randint(0, T, (config.batch_size,), generator=generator).numpy()
-        out = model(torch.from_numpy(frames[e, t]).to(device, non_blocking=True))
-        loss = sum(out.losses.values())
+        with autocast(device, precision):
+            out = model(torch.from_numpy(frames[e, t]).to(device, non_blocking=True))
+            loss = sum(out.losses.values())
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         optimiser.step()
@@ -214,7 +216,7 @@ def patch_counts(frames: np.ndarray, patch: tuple[int, int]) -> tuple[np.ndarray
 
 
 def _content_fit(
-    model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig
+    model: VQVAE, optimiser: torch.optim.Optimizer, frames: np.ndarray, config: VQVAEConfig, precision: Precision
 ) -> tuple[Step, Callable[[], dict[str, float]]]:
     """`codebook_fit="contents"`: a patch-local model sees each patch alone, so it can be trained on the distinct
     patch contents instead of frames — drawn uniformly, so a content seen once in 10⁵ patches is learned as well as
@@ -230,7 +232,8 @@ def _content_fit(
 
     def step(generator: torch.Generator) -> dict[str, float]:
         batch = contents[torch.randint(0, len(contents), (config.batch_size,), generator=generator).to(device)]
-        loss = model.reconstruction_loss(model.autoencode_params(batch), batch)
+        with autocast(device, precision):
+            loss = model.reconstruction_loss(model.autoencode_params(batch), batch)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         optimiser.step()

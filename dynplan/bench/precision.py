@@ -1,0 +1,66 @@
+"""`precision`: the default prior's training throughput (windows/s) in float32 and under bfloat16 autocast, rounds
+alternated in one process, on the local CPU cores.
+
+What `python -m flows.train pixelcnn --precision bfloat16` would gain here. A CPU without bfloat16 instructions
+(`dynplan.training.precision.bfloat16_missing`) runs the bfloat16 rounds emulated, and the case says so: there
+training refuses bfloat16 and float32 stays.
+"""
+
+from __future__ import annotations
+
+import statistics
+
+import torch
+
+from dynplan.bench.prior import rows_loss, train_rate
+from dynplan.models.pixelcnn import ConditionalPixelCNN
+from dynplan.models.registry import world_model_spec
+from dynplan.training.precision import autocast, bfloat16_missing
+
+CPU = torch.device("cpu")
+
+
+def _bfloat16_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    with autocast(CPU, "bfloat16"):
+        return model(context, target).loss
+
+
+def bench_precision(
+    steps: int = 4,
+    repeats: int = 5,
+    threads: int = 2,
+    presets: tuple[str, ...] = ("default",),
+    batch: int | None = None,
+) -> dict[str, dict[str, float | str]]:
+    """Median over `repeats` alternated rounds of `steps` training batches (of the preset's size, or `batch`) in each
+    precision, per preset's prior."""
+    torch.set_num_threads(threads)
+    missing = bfloat16_missing(CPU)
+    results: dict[str, dict[str, float | str]] = {}
+    for name in presets:
+        config = world_model_spec(name).prior
+        torch.manual_seed(0)
+        model = ConditionalPixelCNN(config).train()
+        optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+        h, w = world_model_spec(name).tokenizer.grid
+        size = batch or config.batch_size
+        context = torch.randint(0, config.codebook_size, (size, config.context, h, w))
+        target = torch.randint(0, config.codebook_size, (size, h, w))
+        losses = {"float32": rows_loss, "bfloat16": _bfloat16_loss}
+        rates: dict[str, list[float]] = {precision: [] for precision in losses}
+        for loss in losses.values():  # warm-up
+            train_rate(model, loss, optimiser, context, target, 1)
+        for _ in range(repeats):
+            for precision, loss in losses.items():
+                rates[precision].append(train_rate(model, loss, optimiser, context, target, steps))
+        float32, bfloat16 = statistics.median(rates["float32"]), statistics.median(rates["bfloat16"])
+        results[f"prior {name}"] = {
+            "float32_windows_per_s": round(float32, 1),
+            "bfloat16_windows_per_s": round(bfloat16, 1),
+            "bfloat16_speedup": round(bfloat16 / float32, 2),
+            "bfloat16_native": "yes" if missing is None else f"no: {missing}",
+            "batch": size,
+            "threads": threads,
+            "rounds": repeats,
+        }
+    return results
