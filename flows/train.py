@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import get_args
 
 from dynplan.cli import CommandParser, bounded, run_command
 from dynplan.config import ConfigError, field_help
@@ -20,6 +21,7 @@ from dynplan.models.configs import PixelCNNConfig, VQVAEConfig
 from dynplan.models.registry import WorldModelSpec, default_model, models_of, world_model_names, world_model_spec
 from dynplan.paths import PathArgument, PathKind, check_input, check_output
 from dynplan.training.budget import TrainBudget
+from dynplan.training.precision import Precision
 from dynplan.training.tensorboard import INSTALL, check_available
 from dynplan.world import DEFAULT_WORLD, world_names
 from flows.cli import add_console_options, temporary_api
@@ -97,7 +99,7 @@ def _parser() -> CommandParser:
     parser.add_argument("--device", help="torch device to train on, e.g. cuda (default: the CPU); same run folder")
     parser.add_argument(
         "--precision",
-        choices=["float32", "bfloat16"],
+        choices=get_args(Precision),
         default="float32",
         help="arithmetic of the training steps (bfloat16: autocast, on a device with bfloat16 instructions; "
         "a run folder of its own)",

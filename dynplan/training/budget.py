@@ -3,11 +3,12 @@ command, preset or registry entry can name and check a budget without importing 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 from pydantic import Field, field_validator, model_validator
 
 from dynplan.config import Config
+from dynplan.training.precision import Precision, bfloat16_missing
 
 if TYPE_CHECKING:
     import torch
@@ -24,7 +25,7 @@ class TrainBudget(Config):
     seed: int = Field(0, ge=0, le=2**62, description="seed of initialisation and batch order")
     init_from: str | None = Field(None, description="checkpoint whose model weights start the run (fine-tuning)")
     device: str | None = Field(None, description="torch device to train on, e.g. 'cuda' (default: the CPU)")
-    precision: Literal["float32", "bfloat16"] = Field(
+    precision: Precision = Field(
         "float32", description="arithmetic of the training steps: bfloat16 autocast needs a device that has it"
     )
 
@@ -47,8 +48,6 @@ class TrainBudget(Config):
     @model_validator(mode="after")
     def _device_has_precision(self) -> TrainBudget:
         if self.precision == "bfloat16":
-            from dynplan.training.precision import bfloat16_missing  # torch, only when bfloat16 is asked for
-
             missing = bfloat16_missing(self.torch_device)
             if missing:
                 raise ValueError(f"precision='bfloat16': {missing}; valid here: float32")

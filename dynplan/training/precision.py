@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
-import torch
+if TYPE_CHECKING:
+    import torch
 
+#: The arithmetic of a stage's training steps. (torch is imported where it is used: a budget names a precision
+#: without it.)
 Precision = Literal["float32", "bfloat16"]
 
 #: CPU flags (Linux /proc/cpuinfo) of native bfloat16 arithmetic.
@@ -33,6 +36,8 @@ def _cpu_flags() -> set[str] | None:
 
 def bfloat16_missing(device: torch.device) -> str | None:
     """None when `device` has bfloat16 arithmetic of its own; else why it has not."""
+    import torch
+
     if device.type == "cuda":
         return None if torch.cuda.is_bf16_supported() else f"{torch.cuda.get_device_name(device)} has no bfloat16"
     if device.type != "cpu":
@@ -51,4 +56,6 @@ def autocast(device: torch.device, precision: Precision) -> contextlib.AbstractC
     """The context a training step's forward pass runs in: bfloat16 autocast, or nothing for float32."""
     if precision == "float32":
         return contextlib.nullcontext()
+    import torch
+
     return torch.autocast(device.type, dtype=torch.bfloat16)
