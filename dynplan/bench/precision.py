@@ -12,9 +12,8 @@ import statistics
 
 import torch
 
-from dynplan.bench.prior import rows_loss, train_rate
+from dynplan.bench.prior import rows_loss, train_rate, training_setup
 from dynplan.models.pixelcnn import ConditionalPixelCNN
-from dynplan.models.registry import world_model_spec
 from dynplan.training.precision import autocast, bfloat16_missing
 
 CPU = torch.device("cpu")
@@ -38,14 +37,7 @@ def bench_precision(
     missing = bfloat16_missing(CPU)
     results: dict[str, dict[str, float | str]] = {}
     for name in presets:
-        config = world_model_spec(name).prior
-        torch.manual_seed(0)
-        model = ConditionalPixelCNN(config).train()
-        optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-        h, w = world_model_spec(name).tokenizer.grid
-        size = batch or config.batch_size
-        context = torch.randint(0, config.codebook_size, (size, config.context, h, w))
-        target = torch.randint(0, config.codebook_size, (size, h, w))
+        model, optimiser, context, target = training_setup(name, batch)
         losses = {"float32": rows_loss, "bfloat16": _bfloat16_loss}
         rates: dict[str, list[float]] = {precision: [] for precision in losses}
         for loss in losses.values():  # warm-up
@@ -59,7 +51,7 @@ def bench_precision(
             "bfloat16_windows_per_s": round(bfloat16, 1),
             "bfloat16_speedup": round(bfloat16 / float32, 2),
             "bfloat16_native": "yes" if missing is None else f"no: {missing}",
-            "batch": size,
+            "batch": len(target),
             "threads": threads,
             "rounds": repeats,
         }

@@ -43,6 +43,22 @@ def train_rate(
     return steps * len(target) / (time.perf_counter() - start)
 
 
+def training_setup(
+    name: str, batch: int | None = None
+) -> tuple[ConditionalPixelCNN, torch.optim.Optimizer, torch.Tensor, torch.Tensor]:
+    """Preset `name`'s prior (seeded), its Adam optimiser, and random context and target codes of the preset's batch
+    size (or `batch`) on the grid of the tokenizer the prior belongs to."""
+    config = world_model_spec(name).prior
+    torch.manual_seed(0)
+    model = ConditionalPixelCNN(config).train()
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    h, w = world_model_spec(name).tokenizer.grid
+    size = batch or config.batch_size
+    context = torch.randint(0, config.codebook_size, (size, config.context, h, w))
+    target = torch.randint(0, config.codebook_size, (size, h, w))
+    return model, optimiser, context, target
+
+
 def bench_prior(
     steps: int = 4, repeats: int = 3, threads: int = 2, presets: tuple[str, ...] = ("paper", "default")
 ) -> dict[str, dict[str, float]]:
@@ -50,13 +66,7 @@ def bench_prior(
     torch.set_num_threads(threads)
     results = {}
     for name in presets:
-        config = world_model_spec(name).prior
-        torch.manual_seed(0)
-        model = ConditionalPixelCNN(config).train()
-        optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
-        h, w = world_model_spec(name).tokenizer.grid  # the code grid of the tokenizer this prior belongs to
-        context = torch.randint(0, config.codebook_size, (config.batch_size, config.context, h, w))
-        target = torch.randint(0, config.codebook_size, (config.batch_size, h, w))
+        model, optimiser, context, target = training_setup(name)
         rates: dict[str, list[float]] = {"baseline": [], "ours": []}
         for fn in (_channel_axis_loss, rows_loss):  # warm-up
             train_rate(model, fn, optimiser, context, target, 1)
@@ -68,7 +78,7 @@ def bench_prior(
             "train_windows_per_s": round(ours, 1),
             "baseline_windows_per_s": round(baseline, 1),
             "speedup_vs_baseline": round(ours / baseline, 2),
-            "batch": config.batch_size,
+            "batch": len(target),
             "threads": threads,
             "parameters": sum(p.numel() for p in model.parameters()),
         }
