@@ -50,7 +50,8 @@ def test_bench_prior_reports_windows_per_second_against_its_baseline():
 
     results = bench_prior(steps=1, repeats=1, threads=1, presets=("paper",))
     paper = results["paper"]
-    assert paper["train_windows_per_s"] > 0 and paper["baseline_windows_per_s"] > 0
+    assert paper["train_windows_per_s"] > 0 and paper["baseline_windows_per_s"] > 0 and paper["rows_windows_per_s"] > 0
+    assert paper["speedup_vs_rows"] == round(paper["train_windows_per_s"] / paper["rows_windows_per_s"], 2)
 
 
 def test_bench_table_prints_numbers_and_labels(monkeypatch, capsys):

@@ -63,15 +63,45 @@ def test_teacher_forced_loss_and_greedy_generation_are_consistent(model):
 
 
 def test_training_loss_equals_the_cross_entropy_of_the_logits(model):
-    """The loss runs its head over channels-last rows (for speed): the same numbers as the logits' cross-entropy."""
+    """The loss takes the output layer a block of positions at a time (for speed): the same loss, accuracy and
+    gradients as the plain cross-entropy of the logits."""
     import torch.nn.functional as F
 
     context, target = torch.randint(0, 16, (5, 4, 6, 6)), torch.randint(0, 16, (5, 6, 6))
-    logits = model.logits(target, model.condition(context))
     out = model(context, target)
-    torch.testing.assert_close(out.logits, logits)
-    torch.testing.assert_close(out.loss, F.cross_entropy(logits, target))
+    grads = torch.autograd.grad(out.loss, list(model.parameters()), allow_unused=True)
+    logits = model.logits(target, model.condition(context))
+    plain = F.cross_entropy(logits, target)
+    expected = torch.autograd.grad(plain, list(model.parameters()), allow_unused=True)
+    torch.testing.assert_close(out.loss, plain)
     assert out.accuracy == (logits.argmax(1) == target).float().mean()
+    for got, want in zip(grads, expected, strict=True):
+        assert (got is None) == (want is None)
+        if got is not None:
+            torch.testing.assert_close(got, want, rtol=1e-4, atol=1e-6)
+
+
+@pytest.mark.parametrize("chunk", [1, 7, 180, 1000])
+def test_the_blocked_head_loss_is_the_same_at_any_block_size(chunk):
+    """Blocks of 1, an uneven 7, exactly the rows and more than the rows give the plain cross-entropy's loss,
+    accuracy and gradients, also for a row whose target is not the most probable code."""
+    import torch.nn.functional as F
+
+    from dynplan.models.head_loss import head_cross_entropy
+
+    torch.manual_seed(0)
+    hidden = torch.randn(180, 8, requires_grad=True)
+    weight, bias = torch.randn(33, 8, requires_grad=True), torch.randn(33, requires_grad=True)
+    target = torch.randint(0, 33, (180,))
+    loss, accuracy = head_cross_entropy(hidden, weight, bias, target, chunk)
+    got = torch.autograd.grad(loss, (hidden, weight, bias))
+    logits = hidden @ weight.T + bias
+    plain = F.cross_entropy(logits, target)
+    want = torch.autograd.grad(plain, (hidden, weight, bias))
+    torch.testing.assert_close(loss, plain)
+    assert 0 < accuracy < 1 and accuracy == (logits.argmax(1) == target).float().mean()
+    for g, w in zip(got, want, strict=True):
+        torch.testing.assert_close(g, w)
 
 
 def test_codebook_init_keeps_the_codebook_geometry():

@@ -12,7 +12,7 @@ import statistics
 
 import torch
 
-from dynplan.bench.prior import rows_loss, train_rate, training_setup
+from dynplan.bench.prior import product_loss, train_rate, training_setup
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.training.precision import autocast, bfloat16_missing
 
@@ -38,7 +38,7 @@ def bench_precision(
     results: dict[str, dict[str, float | str]] = {}
     for name in presets:
         model, optimiser, context, target = training_setup(name, batch)
-        losses = {"float32": rows_loss, "bfloat16": _bfloat16_loss}
+        losses = {"float32": product_loss, "bfloat16": _bfloat16_loss}
         rates: dict[str, list[float]] = {precision: [] for precision in losses}
         for loss in losses.values():  # warm-up
             train_rate(model, loss, optimiser, context, target, 1)

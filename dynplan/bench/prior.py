@@ -1,8 +1,9 @@
 """`prior`: training throughput (windows/s) of each PixelCNN prior preset on the local CPU cores.
 
-Random code windows at each preset's batch size. The baseline, timed in the same process, is the same model
-with its cross-entropy taken over the channel axis of (B, K, h, w) logits — the plain formulation, which
-`ConditionalPixelCNN.forward` speeds up by taking the K-way log-softmax over contiguous rows.
+Random code windows at each preset's batch size, three formulations of the same loss timed in turn in one process:
+the plain one (the baseline: the cross-entropy over the channel axis of (B, K, h, w) logits), the K-way
+log-softmax over channels-last rows (`rows`), and the product's (`ConditionalPixelCNN.forward`: the output layer
+and its cross-entropy a block of positions at a time, `dynplan.models.head_loss`).
 """
 
 from __future__ import annotations
@@ -22,8 +23,18 @@ def _channel_axis_loss(model: ConditionalPixelCNN, context: torch.Tensor, target
     return F.cross_entropy(model.logits(target, model.condition(context)), target)
 
 
-def rows_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def _rows_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    hidden = model.head[:-1](model._features(model.embed(target).permute(0, 3, 1, 2), model.condition(context)))
+    out = model.head[-1]
+    logits = F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)
+    return F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
+
+
+def product_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return model(context, target).loss
+
+
+FORMULATIONS = {"baseline": _channel_axis_loss, "rows": _rows_loss, "ours": product_loss}
 
 
 def train_rate(
@@ -67,17 +78,19 @@ def bench_prior(
     results = {}
     for name in presets:
         model, optimiser, context, target = training_setup(name)
-        rates: dict[str, list[float]] = {"baseline": [], "ours": []}
-        for fn in (_channel_axis_loss, rows_loss):  # warm-up
+        rates: dict[str, list[float]] = {kind: [] for kind in FORMULATIONS}
+        for fn in FORMULATIONS.values():  # warm-up
             train_rate(model, fn, optimiser, context, target, 1)
         for _ in range(repeats):
-            rates["baseline"].append(train_rate(model, _channel_axis_loss, optimiser, context, target, steps))
-            rates["ours"].append(train_rate(model, rows_loss, optimiser, context, target, steps))
-        ours, baseline = statistics.median(rates["ours"]), statistics.median(rates["baseline"])
+            for kind, fn in FORMULATIONS.items():
+                rates[kind].append(train_rate(model, fn, optimiser, context, target, steps))
+        ours, rows, baseline = (statistics.median(rates[kind]) for kind in ("ours", "rows", "baseline"))
         results[name] = {
             "train_windows_per_s": round(ours, 1),
+            "rows_windows_per_s": round(rows, 1),
             "baseline_windows_per_s": round(baseline, 1),
             "speedup_vs_baseline": round(ours / baseline, 2),
+            "speedup_vs_rows": round(ours / rows, 2),
             "batch": len(target),
             "threads": threads,
             "parameters": sum(p.numel() for p in model.parameters()),

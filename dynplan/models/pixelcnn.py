@@ -18,6 +18,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from dynplan.models.configs import PixelCNNConfig
+from dynplan.models.head_loss import head_cross_entropy
 
 
 class GatedLayer(nn.Module):
@@ -60,7 +61,8 @@ class GatedLayer(nn.Module):
 
 @dataclass
 class PriorOutput:
-    logits: torch.Tensor
+    """A training step's mean cross-entropy (differentiable) and the fraction of positions predicted exactly."""
+
     loss: torch.Tensor
     accuracy: torch.Tensor
 
@@ -135,22 +137,14 @@ class ConditionalPixelCNN(nn.Module):
             v, h = layer(v, h, condition)
         return h
 
-    def teacher_forced_logits(self, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        """Channels-last logits (B, h, w, K) of every position of `target` (B, h, w), each given the codes of
-        `target` before it and `context` (B, 4, h, w): one pass for all positions, with no loss computed."""
-        hidden = self.head[:-1](self._features(self.embed(target.long()).permute(0, 3, 1, 2), self.condition(context)))
-        # The last 1 × 1 convolution as a matrix product over channels-last features: the K-way (log-)softmax then
-        # runs over contiguous rows (1.3–1.4× faster training steps on a CPU than over the channel axis).
-        out = self.head[-1]
-        return F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)
-
     def forward(self, context: torch.Tensor, target: torch.Tensor) -> PriorOutput:
-        """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w)."""
+        """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w), the
+        output layer and its loss taken together a block of positions at a time (`head_loss`)."""
         target = target.long()
-        logits = self.teacher_forced_logits(context, target)  # (B, h, w, K)
-        loss = F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
-        accuracy = (logits.argmax(-1) == target).float().mean()
-        return PriorOutput(logits.permute(0, 3, 1, 2), loss, accuracy)
+        hidden = self.head[:-1](self._features(self.embed(target).permute(0, 3, 1, 2), self.condition(context)))
+        out = self.head[-1]
+        rows = hidden.permute(0, 2, 3, 1).reshape(-1, hidden.shape[1])
+        return PriorOutput(*head_cross_entropy(rows, out.weight[:, :, 0, 0], out.bias, target.reshape(-1)))
 
 
 def to_strips(grids: torch.Tensor, rows: int | None) -> torch.Tensor:
