@@ -8,11 +8,9 @@ training refuses bfloat16 and float32 stays.
 
 from __future__ import annotations
 
-import statistics
-
 import torch
 
-from dynplan.bench.prior import product_loss, train_rate, training_setup
+from dynplan.bench.prior import alternated_rates, product_loss, training_setup
 from dynplan.models.pixelcnn import ConditionalPixelCNN
 from dynplan.training.precision import autocast, bfloat16_missing
 
@@ -39,13 +37,8 @@ def bench_precision(
     for name in presets:
         model, optimiser, context, target = training_setup(name, batch)
         losses = {"float32": product_loss, "bfloat16": _bfloat16_loss}
-        rates: dict[str, list[float]] = {precision: [] for precision in losses}
-        for loss in losses.values():  # warm-up
-            train_rate(model, loss, optimiser, context, target, 1)
-        for _ in range(repeats):
-            for precision, loss in losses.items():
-                rates[precision].append(train_rate(model, loss, optimiser, context, target, steps))
-        float32, bfloat16 = statistics.median(rates["float32"]), statistics.median(rates["bfloat16"])
+        rates = alternated_rates((model, optimiser, context, target), losses, steps, repeats)
+        float32, bfloat16 = rates["float32"], rates["bfloat16"]
         results[f"prior {name}"] = {
             "float32_windows_per_s": round(float32, 1),
             "bfloat16_windows_per_s": round(bfloat16, 1),

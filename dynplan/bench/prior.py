@@ -70,21 +70,34 @@ def training_setup(
     return model, optimiser, context, target
 
 
+def alternated_rates(
+    setup: tuple[ConditionalPixelCNN, torch.optim.Optimizer, torch.Tensor, torch.Tensor],
+    losses: dict[str, Callable],
+    steps: int,
+    repeats: int,
+) -> dict[str, float]:
+    """Each loss's median windows/s over `repeats` rounds of `steps` training batches, the losses in turn within a
+    round (after one warm-up batch each), on `setup`'s model, optimiser, context and target."""
+    model, optimiser, context, target = setup
+    for loss in losses.values():
+        train_rate(model, loss, optimiser, context, target, 1)
+    rates: dict[str, list[float]] = {kind: [] for kind in losses}
+    for _ in range(repeats):
+        for kind, loss in losses.items():
+            rates[kind].append(train_rate(model, loss, optimiser, context, target, steps))
+    return {kind: statistics.median(values) for kind, values in rates.items()}
+
+
 def bench_prior(
     steps: int = 4, repeats: int = 3, threads: int = 2, presets: tuple[str, ...] = ("paper", "default")
 ) -> dict[str, dict[str, float]]:
-    """Median over `repeats` of `steps` training batches per preset, alternating baseline and ours."""
+    """Median over `repeats` of `steps` training batches per preset, the three formulations alternated."""
     torch.set_num_threads(threads)
     results = {}
     for name in presets:
         model, optimiser, context, target = training_setup(name)
-        rates: dict[str, list[float]] = {kind: [] for kind in FORMULATIONS}
-        for fn in FORMULATIONS.values():  # warm-up
-            train_rate(model, fn, optimiser, context, target, 1)
-        for _ in range(repeats):
-            for kind, fn in FORMULATIONS.items():
-                rates[kind].append(train_rate(model, fn, optimiser, context, target, steps))
-        ours, rows, baseline = (statistics.median(rates[kind]) for kind in ("ours", "rows", "baseline"))
+        rates = alternated_rates((model, optimiser, context, target), FORMULATIONS, steps, repeats)
+        ours, rows, baseline = rates["ours"], rates["rows"], rates["baseline"]
         results[name] = {
             "train_windows_per_s": round(ours, 1),
             "rows_windows_per_s": round(rows, 1),
