@@ -24,8 +24,7 @@ def _channel_axis_loss(model: ConditionalPixelCNN, context: torch.Tensor, target
 
 
 def _rows_loss(model: ConditionalPixelCNN, context: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    hidden = model.head[:-1](model._features(model.embed(target).permute(0, 3, 1, 2), model.condition(context)))
-    out = model.head[-1]
+    hidden, out = model.head_input(target, model.condition(context)), model.head[-1]
     logits = F.linear(hidden.permute(0, 2, 3, 1), out.weight[:, :, 0, 0], out.bias)
     return F.cross_entropy(logits.reshape(-1, logits.shape[-1]), target.reshape(-1))
 

@@ -124,7 +124,11 @@ class ConditionalPixelCNN(nn.Module):
 
     def logits(self, codes: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
         """codes (B, h, w), conditioning map → logits (B, K, h, w); position (i, j) sees only codes before it."""
-        return self.logits_from_embedding(self.embed(codes.long()).permute(0, 3, 1, 2), condition)
+        return self.head[-1](self.head_input(codes, condition))
+
+    def head_input(self, codes: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
+        """What the output layer reads at every position (B, channels, h, w), each given the codes before it."""
+        return self.head[:-1](self._features(self.embed(codes.long()).permute(0, 3, 1, 2), condition))
 
     def logits_from_embedding(self, x: torch.Tensor, condition: torch.Tensor) -> torch.Tensor:
         """As `logits`, from the embedded grid (B, channels, h, w) — differentiable, for the causality test."""
@@ -141,8 +145,7 @@ class ConditionalPixelCNN(nn.Module):
         """Teacher-forced training step: cross-entropy of `target` (B, h, w) given `context` (B, 4, h, w), the
         output layer and its loss taken together a block of positions at a time (`head_loss`)."""
         target = target.long()
-        hidden = self.head[:-1](self._features(self.embed(target).permute(0, 3, 1, 2), self.condition(context)))
-        out = self.head[-1]
+        hidden, out = self.head_input(target, self.condition(context)), self.head[-1]
         rows = hidden.permute(0, 2, 3, 1).reshape(-1, hidden.shape[1])
         return PriorOutput(*head_cross_entropy(rows, out.weight[:, :, 0, 0], out.bias, target.reshape(-1)))
 
