@@ -1,7 +1,10 @@
 """Training curves of PixelCNN priors: validation code accuracy and the decoded next frame's obstacle false
 negatives, against training windows and against wall-clock minutes (what a CPU-bound choice is judged by).
 
-    python -m lab.prior_curves NAME=METRICS_CSV ... --plot curves.png
+    python -m lab.prior_curves NAME=METRICS_CSV[@WINDOWS] ... --plot curves.png
+
+A run started from another's weights (`flows.train --init-from`) counts its windows from 0: `@WINDOWS` places it
+after the windows its start had seen, so a continued prior draws as one curve.
 """
 
 from __future__ import annotations
@@ -22,8 +25,11 @@ def read_metrics(path: str | os.PathLike) -> dict[str, list[float]]:
     return {key: [float(r[key]) if r.get(key) not in (None, "") else float("nan") for r in rows] for key in rows[0]}
 
 
-def plot_prior_curves(runs: dict[str, str | os.PathLike], path: str | os.PathLike) -> None:
-    """One line per run: accuracy and next-frame FN against windows (thousands) and against minutes."""
+def plot_prior_curves(
+    runs: dict[str, str | os.PathLike], path: str | os.PathLike, offsets: dict[str, float] | None = None
+) -> None:
+    """One line per run: accuracy and next-frame FN against windows (thousands; a run's `offsets` entry added) and
+    against minutes."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -32,7 +38,8 @@ def plot_prior_curves(runs: dict[str, str | os.PathLike], path: str | os.PathLik
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharey="row")
     for name, metrics in runs.items():
         m = read_metrics(metrics)
-        windows, minutes = [w / 1e3 for w in m["windows_seen"]], [s / 60 for s in m["elapsed_s"]]
+        start = (offsets or {}).get(name, 0.0)
+        windows, minutes = [(start + w) / 1e3 for w in m["windows_seen"]], [s / 60 for s in m["elapsed_s"]]
         for col, x in enumerate((windows, minutes)):
             axes[0, col].plot(x, [100 * a for a in m["val_accuracy"]], marker=".", label=name)
             axes[1, col].plot(x, [100 * f for f in m["val_next_fn_rate"]], marker=".", label=name)
@@ -49,16 +56,19 @@ def plot_prior_curves(runs: dict[str, str | os.PathLike], path: str | os.PathLik
 def main(argv: list[str] | None = None) -> None:
     parser = CommandParser(prog="python -m lab.prior_curves", description=__doc__,
                            formatter_class=argparse.RawDescriptionHelpFormatter)  # fmt: skip
-    parser.add_argument("runs", nargs="+", metavar="NAME=METRICS_CSV", help="a label and a prior's metrics.csv")
+    parser.add_argument(
+        "runs", nargs="+", metavar="NAME=METRICS_CSV[@WINDOWS]", help="a label, a prior's metrics.csv, its start"
+    )
     parser.add_argument("--plot", required=True, help="where to write the figure (PNG)")
     args = parser.parse_args(argv)
-    runs = {}
+    runs, offsets = {}, {}
     for item in args.runs:
         name, sep, path = item.partition("=")
-        if not sep or not name or not path:
-            parser.error(f"run {item!r} is not NAME=METRICS_CSV")
-        runs[name] = path
-    plot_prior_curves(runs, args.plot)
+        path, at, start = path.partition("@")
+        if not sep or not name or not path or (at and not start.isdigit()):
+            parser.error(f"run {item!r} is not NAME=METRICS_CSV[@WINDOWS] (WINDOWS a whole number)")
+        runs[name], offsets[name] = path, float(start or 0)
+    plot_prior_curves(runs, args.plot, offsets)
 
 
 if __name__ == "__main__":

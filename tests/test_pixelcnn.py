@@ -253,6 +253,29 @@ def test_prior_curves_plot_and_name_a_bad_run_argument(tmp_path, capsys):
     with pytest.raises(SystemExit):
         prior_curves.main([str(tmp_path / "a.csv"), "--plot", str(tmp_path / "d.png")])
     assert "is not NAME=METRICS_CSV" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        prior_curves.main([f"a={tmp_path / 'a.csv'}@many", "--plot", str(tmp_path / "d.png")])
+    assert "WINDOWS a whole number" in capsys.readouterr().err
+
+
+def test_prior_curves_place_a_continued_run_after_the_windows_its_start_had_seen(tmp_path, monkeypatch):
+    from lab import prior_curves
+
+    header = "epoch,windows_seen,elapsed_s,val_accuracy,val_next_fn_rate\n"
+    (tmp_path / "a.csv").write_text(header + "1,3200,60,0.05,0.9\n")
+    plotted = []
+    import matplotlib.axes
+
+    real_plot = matplotlib.axes.Axes.plot
+
+    def plot(self, x, *args, **kwargs):
+        plotted.append(list(x))
+        return real_plot(self, x, *args, **kwargs)
+
+    monkeypatch.setattr(matplotlib.axes.Axes, "plot", plot)
+    runs = [f"start={tmp_path / 'a.csv'}", f"on={tmp_path / 'a.csv'}@576000"]
+    prior_curves.main([*runs, "--plot", str(tmp_path / "c.png")])
+    assert [3.2] in plotted and [579.2] in plotted  # thousands of windows: its own, and after the start's 576,000
 
 
 def test_the_kernels_exp_and_gate_match_libm():
