@@ -35,16 +35,16 @@ def bench_precision(
     missing = bfloat16_missing(CPU)
     results: dict[str, dict[str, float | str]] = {}
     for name in presets:
-        model, optimiser, context, target = training_setup(name, batch)
+        setup = training_setup(name, batch)
         losses = {"float32": product_loss, "bfloat16": _bfloat16_loss}
-        rates = alternated_rates((model, optimiser, context, target), losses, steps, repeats)
+        rates = alternated_rates(setup, losses, steps, repeats)
         float32, bfloat16 = rates["float32"], rates["bfloat16"]
         results[f"prior {name}"] = {
             "float32_windows_per_s": round(float32, 1),
             "bfloat16_windows_per_s": round(bfloat16, 1),
             "bfloat16_speedup": round(bfloat16 / float32, 2),
             "bfloat16_native": "yes" if missing is None else f"no: {missing}",
-            "batch": len(target),
+            "batch": len(setup[3]),
             "threads": threads,
             "rounds": repeats,
         }
