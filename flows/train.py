@@ -165,19 +165,14 @@ def _checked(args: argparse.Namespace) -> tuple[dict, dict]:
 def _check_epochs(args: argparse.Namespace, config: dict, budget: dict) -> None:
     """`--epochs` below what the run has trained already is refused, naming the run: its weights are of more
     epochs than asked, and a run keeps no earlier epoch's."""
-    from dynplan.models import checkpoint
+    from dynplan.training.loop import trained_epochs
     from dynplan.training.runs import pixelcnn_run_dir, vqvae_run_dir
 
     if args.stage == "vqvae":
         run_dir = vqvae_run_dir(args.store, args.out, config, budget)
     else:
         run_dir = pixelcnn_run_dir(args.store, args.codes or f"codes_{args.model}", args.out, config, budget)
-    trained = 0
-    for path in (run_dir / f"{args.stage}.pt", run_dir / "checkpoint.pt"):
-        try:
-            trained = max(trained, checkpoint.load(path, args.stage)["epoch"]) if path.is_file() else trained
-        except checkpoint.UnreadableCheckpoint:
-            continue  # damaged: the run exports or resumes it, as it would without this check
+    trained = trained_epochs(run_dir, args.stage)
     if trained > args.epochs:
         raise ValueError(
             f"--epochs {args.epochs}: the run {run_dir} has trained {trained} epochs, and keeps no earlier epoch's "

@@ -613,3 +613,5 @@ def test_fewer_epochs_than_a_run_has_trained_are_refused_naming_the_run(tmp_path
     error = capsys.readouterr().err.strip().splitlines()[-1]
     assert caught.value.code == 2 and f"--epochs 2: the run {run_dir} has trained 3 epochs" in error
     assert "ask --epochs 3 or more, or train a 2-epoch run under another --out" in error
+    with pytest.raises(ValueError, match=re.escape(f"epochs 2: the run {run_dir} has trained 3 epochs")):
+        train_vqvae(store, run_dir, PRESETS["default"], TrainBudget(epochs=2))  # the library refuses it too

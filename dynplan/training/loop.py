@@ -54,13 +54,32 @@ class Stage:
 def begin(out_dir: Path, kind: str, config: dict, budget: TrainBudget) -> Path | None:
     """Prepare a run in `out_dir`: return its final checkpoint if it already has the epochs asked for; else set
     torch's threads and seed — before the stage builds its model, so initialisation is reproducible. The folder is
-    made by the run's first write, so a start that fails before training leaves none behind."""
+    made by the run's first write, so a start that fails before training leaves none behind. A run that has
+    trained more epochs than `budget.epochs` is a ValueError: it keeps no earlier epoch's weights."""
+    trained = trained_epochs(out_dir, kind)
+    if trained > budget.epochs:
+        raise ValueError(
+            f"epochs {budget.epochs}: the run {out_dir} has trained {trained} epochs, and keeps no earlier epoch's "
+            f"weights; ask {trained} or more, or train a {budget.epochs}-epoch run in another folder"
+        )
     done = finished(out_dir, kind, config, budget.epochs)
     if done is None:
         if budget.threads:
             torch.set_num_threads(budget.threads)
         torch.manual_seed(budget.seed)
     return done
+
+
+def trained_epochs(out_dir: str | os.PathLike, stage_kind: str) -> int:
+    """The most epochs the run in `out_dir` holds, by its final or latest checkpoint (0: none, or none readable —
+    the run exports or resumes a damaged one as it would without this count)."""
+    trained = 0
+    for path in (Path(out_dir) / f"{stage_kind}.pt", Path(out_dir) / "checkpoint.pt"):
+        try:
+            trained = max(trained, checkpoint.load(path, stage_kind)["epoch"]) if path.is_file() else trained
+        except checkpoint.UnreadableCheckpoint:
+            continue
+    return trained
 
 
 def finished(out_dir: Path, stage_kind: str, config: dict, epochs: int) -> Path | None:
